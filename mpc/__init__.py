@@ -1,0 +1,1 @@
+"""Contact-implicit MPC through the complementarity-free model (installed as torchcontact.mpc)."""

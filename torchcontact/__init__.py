@@ -1,0 +1,51 @@
+"""torchcontact: the complementarity-free multi-contact model (Jin 2024) in PyTorch.
+
+The contact layer is pure torch; ``torchcontact.sim`` bridges MuJoCo, ``torchcontact.mpc``
+plans through the model and ``torchcontact.learn`` fits its stiffness from data.
+"""
+
+from torchcontact.contacts import Contacts, facet_directions
+from torchcontact.functional import cf_multipliers, cf_velocity, softplus
+from torchcontact.integrate import JointLayout, integrate
+from torchcontact.model import MODELS, AnitescuQP, ComplementarityFree, ContactModel, contact_model
+from torchcontact.qp import qp_solve
+from torchcontact.stiffness import (
+    PARAMETERIZATIONS,
+    Constant,
+    ContactNetwork,
+    Parameterization,
+    PerRow,
+    Relative,
+    StateNetwork,
+    parameterization,
+)
+from torchcontact.systems import QuasiDynamic, full_dynamic
+from torchcontact.validation import set_validate_args, validate_args
+
+__all__ = [
+    "MODELS",
+    "PARAMETERIZATIONS",
+    "AnitescuQP",
+    "ComplementarityFree",
+    "Constant",
+    "ContactModel",
+    "ContactNetwork",
+    "Contacts",
+    "JointLayout",
+    "Parameterization",
+    "PerRow",
+    "QuasiDynamic",
+    "Relative",
+    "StateNetwork",
+    "cf_multipliers",
+    "cf_velocity",
+    "contact_model",
+    "facet_directions",
+    "full_dynamic",
+    "integrate",
+    "parameterization",
+    "qp_solve",
+    "set_validate_args",
+    "softplus",
+    "validate_args",
+]

@@ -1,0 +1,1 @@
+"""Reproductions of the paper's contact-simulation experiments (box pushing, full dynamics)."""

@@ -1,0 +1,122 @@
+"""Contact models as ``nn.Module``s, interchangeable by name: ``contact_model("qp")``.
+
+Both map one step's metric ``Q``, linear term ``b`` and :class:`Contacts` to the next velocity
+``v⁺`` and expose the row and contact impulses for inspection.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from torchcontact.contacts import Contacts
+from torchcontact.functional import (
+    Scalar,
+    _batch_scalar,
+    cf_multipliers,
+    velocity_from_multipliers,
+)
+from torchcontact.qp import qp_solve
+from torchcontact.stiffness import Parameterization, parameterization
+
+
+class ContactModel(nn.Module):
+    """Interface: ``forward(Q, b, contacts, h, q=None) -> v⁺`` and the impulses behind it."""
+
+    facets: int
+
+    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        """``(v⁺ (..., nv), β (..., nc·n_d))``: next velocity and row impulses (0 on padding)."""
+        raise NotImplementedError
+
+    def forward(self, Q, b, contacts: Contacts, h: Scalar, q=None) -> torch.Tensor:
+        """Next velocity ``v⁺: (..., nv)``; arguments as :meth:`row_impulses`."""
+        return self.row_impulses(Q, b, contacts, h, q)[0]
+
+    def impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        """Per-contact impulses: ``normal (..., nc)`` and ``friction (..., nc, 2)`` in (t₁, t₂)."""
+        return contacts.impulses(self.row_impulses(Q, b, contacts, h, q)[1], self.facets)
+
+
+def _check_facets(facets: int) -> int:
+    if not isinstance(facets, int) or facets < 3:
+        raise ValueError(f"facets must be an integer >= 3, got {facets!r}")
+    return facets
+
+
+class ComplementarityFree(ContactModel):
+    """The complementarity-free contact step (Jin 2024) with learnable K(q) and D(q).
+
+    Args:
+        stiffness: K, a float (a learnable constant), a name from
+            :data:`torchcontact.stiffness.PARAMETERIZATIONS` or a :class:`Parameterization`.
+        damping: D like ``stiffness``, or None for none. ``Relative(0.1)`` is the paper's
+            D = 0.1·K.
+        gamma: softplus sharpness γ; None for the exact ``max(·, 0)``.
+        facets: friction-cone facets n_d per contact (4 by default, 8 for a finer cone).
+
+    Call: ``model(Q, b, contacts, h, q=None)`` with ``Q (..., nv)`` or ``(..., nv, nv)``,
+    ``b (..., nv)``, :class:`Contacts` of batch shape ``...``, ``h`` [s] and, for
+    state-dependent K, ``q (..., nq)``. Returns ``v⁺ (..., nv)``.
+    """
+
+    def __init__(
+        self,
+        stiffness: Parameterization | float | str = 1.0,
+        damping: Parameterization | float | str | None = None,
+        gamma: float | None = 100.0,
+        facets: int = 4,
+    ):
+        super().__init__()
+        if gamma is not None and not (isinstance(gamma, (int, float)) and gamma > 0):
+            raise ValueError(f"gamma must be a positive number or None, got {gamma!r}")
+        self.stiffness = parameterization(stiffness)
+        self.damping = None if damping is None else parameterization(damping)
+        self.gamma = None if gamma is None else float(gamma)
+        self.facets = _check_facets(facets)
+
+    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        jac, phi, active = contacts.dual_rows(self.facets)
+        K = self.stiffness(contacts, self.facets, q)
+        D = None if self.damping is None else self.damping(contacts, self.facets, q, K)
+        lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma)
+        lam = lam * active.to(lam.dtype)
+        v = velocity_from_multipliers(solve, b, jac, lam, h)
+        return v, lam * _batch_scalar(h)
+
+    def extra_repr(self) -> str:
+        return f"gamma={self.gamma}, facets={self.facets}"
+
+
+class AnitescuQP(ContactModel):
+    """The Anitescu QP model solved by OSQP: the honest baseline. Not differentiable.
+
+    Args:
+        facets: friction-cone facets n_d per contact.
+        settings: OSQP settings overriding :data:`torchcontact.qp.OSQP_SETTINGS`.
+    """
+
+    def __init__(self, facets: int = 4, settings: dict | None = None):
+        super().__init__()
+        self.facets = _check_facets(facets)
+        self.settings = dict(settings or {})
+
+    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        jac, phi, active = contacts.dual_rows(self.facets)
+        return qp_solve(Q, b, jac, phi, h, active, self.settings)
+
+
+MODELS: dict[str, type[ContactModel]] = {
+    "complementarity_free": ComplementarityFree,
+    "qp": AnitescuQP,
+}
+
+
+def contact_model(name: str, **kwargs) -> ContactModel:
+    """Build a contact model by name: ``"complementarity_free"`` or ``"qp"``."""
+    if name not in MODELS:
+        raise ValueError(f"name must be one of {sorted(MODELS)}, got {name!r}")
+    return MODELS[name](**kwargs)
+
+
+__all__ = ["AnitescuQP", "ComplementarityFree", "ContactModel", "MODELS", "contact_model"]

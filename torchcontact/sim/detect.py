@@ -1,0 +1,170 @@
+"""Contact detection: MuJoCo collisions → :class:`~torchcontact.contacts.Contacts`."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+import torch
+
+from torchcontact.contacts import PAD_DISTANCE, Contacts
+
+OVERFLOW_POLICIES = ("error", "deepest")
+
+
+def _body_id(model: mujoco.MjModel, body: str | int) -> int:
+    if isinstance(body, (int, np.integer)):
+        if not 0 <= int(body) < model.nbody:
+            raise ValueError(f"body id must be in [0, {model.nbody}), got {body}")
+        return int(body)
+    index = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
+    if index < 0:
+        raise ValueError(f"no body named {body!r} in the model")
+    return index
+
+
+class ContactDetector:
+    """Collision detection for the contact pairs a scene declares, at a fixed slot count.
+
+    Keeps only contacts that involve one of ``bodies`` (e.g. the manipulated object against
+    the robot and the ground; robot–robot contacts are dropped), minus ``exclude`` pairs.
+    Detection runs on a private copy of the model whose relevant geoms get ``margin``, so
+    contacts up to that distance are seen without changing the simulated plant.
+
+    Every row's sign is fixed by MuJoCo's contact frame, whose normal points from geom1 to
+    geom2: ``Jⁿ = nᵀ(J_geom2 − J_geom1)`` at the contact point, so ``Jⁿv > 0`` opens the gap
+    whichever geom MuJoCo lists first.
+
+    Args:
+        model: the scene's ``MjModel`` (copied, not modified).
+        bodies: names or ids of the bodies whose contacts are modelled.
+        slots: contact slots nc in the output (padding marked inactive).
+        mu: friction coefficient override; None takes MuJoCo's combined sliding friction.
+        margin: detection distance [m] for the relevant geoms; None keeps the model's.
+        exclude: pairs of body names/ids whose mutual contacts are dropped.
+        overflow: ``"error"`` raises when more contacts than ``slots`` are found;
+            ``"deepest"`` keeps the ``slots`` smallest distances (documented truncation).
+        dtype, device: of the returned tensors.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        bodies: Sequence[str | int],
+        slots: int,
+        mu: float | None = None,
+        margin: float | None = None,
+        exclude: Sequence[tuple[str | int, str | int]] = (),
+        overflow: str = "error",
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ):
+        if not isinstance(slots, int) or slots < 0:
+            raise ValueError(f"slots must be a non-negative integer, got {slots!r}")
+        if mu is not None and not (np.isfinite(mu) and mu >= 0):
+            raise ValueError(f"mu must be a non-negative finite number or None, got {mu!r}")
+        if margin is not None and not (np.isfinite(margin) and margin >= 0):
+            raise ValueError(f"margin must be a non-negative finite number or None, got {margin!r}")
+        if overflow not in OVERFLOW_POLICIES:
+            raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
+        if not bodies:
+            raise ValueError("bodies must name at least one body whose contacts are modelled")
+        self.model = copy.deepcopy(model)
+        self.data = mujoco.MjData(self.model)
+        self.bodies = frozenset(_body_id(model, b) for b in bodies)
+        self.exclude = frozenset(
+            frozenset((_body_id(model, a), _body_id(model, b))) for a, b in exclude
+        )
+        if margin is not None:
+            relevant = np.isin(self.model.geom_bodyid, list(self.bodies))
+            self.model.geom_margin[relevant] = margin
+        self.slots, self.mu, self.overflow = slots, mu, overflow
+        self.dtype = dtype or torch.get_default_dtype()
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        self._jacp = np.zeros((3, model.nv))
+
+    def __call__(self, qpos) -> Contacts:
+        """Contacts at ``qpos: (nq,)`` or a batch ``(..., nq)`` (array or tensor)."""
+        qpos = np.asarray(qpos.detach().cpu() if isinstance(qpos, torch.Tensor) else qpos,
+                          dtype=np.float64)
+        if qpos.ndim == 0 or qpos.shape[-1] != self.model.nq:
+            raise ValueError(f"qpos must have shape (..., {self.model.nq}), got {qpos.shape}")
+        flat = qpos.reshape(-1, self.model.nq)
+        arrays = [self._detect(q) for q in flat]
+        stacked = {k: np.stack([a[k] for a in arrays]).reshape(*qpos.shape[:-1], *arrays[0][k].shape)
+                   for k in arrays[0]} if arrays else {}
+        return self._to_contacts(stacked)
+
+    def _detect(self, qpos: np.ndarray) -> dict[str, np.ndarray]:
+        m, d = self.model, self.data
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_collision(m, d)
+        return self._extract(m, d)
+
+    def from_data(self, data: mujoco.MjData) -> Contacts:
+        """Contacts from ``data`` whose collisions are already computed (``mj_forward``).
+
+        Uses ``data``'s own contact list (and so the plant model's margins).
+        """
+        return self._to_contacts(self._extract(self.model, data))
+
+    def _relevant(self, m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
+        geoms = d.contact.geom[: d.ncon]
+        body1 = m.geom_bodyid[geoms[:, 0]]
+        body2 = m.geom_bodyid[geoms[:, 1]]
+        keep = np.array([(b1 in self.bodies or b2 in self.bodies)
+                         and frozenset((b1, b2)) not in self.exclude
+                         for b1, b2 in zip(body1, body2)], dtype=bool)
+        return np.flatnonzero(keep)
+
+    def _extract(self, m: mujoco.MjModel, d: mujoco.MjData) -> dict[str, np.ndarray]:
+        kept = self._relevant(m, d)
+        if len(kept) > self.slots:
+            if self.overflow == "error":
+                raise ValueError(
+                    f"{len(kept)} contacts found but slots={self.slots}: raise slots, or pass "
+                    "overflow='deepest' to keep the deepest ones"
+                )
+            kept = kept[np.argsort(d.contact.dist[kept], kind="stable")[: self.slots]]
+        nc, nv = self.slots, m.nv
+        out = {
+            "phi": np.full(nc, PAD_DISTANCE),
+            "jac_normal": np.zeros((nc, nv)),
+            "jac_tangent": np.zeros((nc, 2, nv)),
+            "mu": np.zeros(nc),
+            "active": np.zeros(nc, dtype=bool),
+            "frame": np.tile(np.eye(3), (nc, 1, 1)),
+            "position": np.zeros((nc, 3)),
+        }
+        for slot, i in enumerate(kept):
+            contact = d.contact[i]
+            frame = contact.frame.reshape(3, 3)  # rows: normal (geom1 → geom2), t₁, t₂
+            relative = self._point_jacobian(m, d, contact.geom2, contact.pos) - self._point_jacobian(
+                m, d, contact.geom1, contact.pos
+            )
+            rows = frame @ relative
+            out["phi"][slot] = contact.dist
+            out["jac_normal"][slot] = rows[0]
+            out["jac_tangent"][slot] = rows[1:]
+            out["mu"][slot] = contact.friction[0] if self.mu is None else self.mu
+            out["active"][slot] = True
+            out["frame"][slot] = frame
+            out["position"][slot] = contact.pos
+        return out
+
+    def _point_jacobian(self, m, d, geom: int, point: np.ndarray) -> np.ndarray:
+        mujoco.mj_jac(m, d, self._jacp, None, point, m.geom_bodyid[geom])
+        return self._jacp.copy()
+
+    def _to_contacts(self, arrays: dict[str, np.ndarray]) -> Contacts:
+        def tensor(key):
+            x = torch.from_numpy(np.ascontiguousarray(arrays[key]))
+            if key == "active":
+                return x.to(self.device)
+            return x.to(device=self.device, dtype=self.dtype)
+
+        return Contacts(**{key: tensor(key) for key in arrays})

@@ -1,0 +1,175 @@
+"""Parameterizations of the contact stiffness K(q) and damping D(q): positive by construction.
+
+Each is an ``nn.Module`` called as ``param(contacts, facets, q=None, stiffness=None)`` and
+returning a non-negative tensor broadcastable to the row shape ``(..., nc·n_d)``. Pick one by
+name with :func:`parameterization` (``"constant"``, ``"per_row"``, ``"contact_network"``,
+``"state_network"``, ``"relative"``) or pass a float for a constant.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from torchcontact.contacts import Contacts
+
+
+def _log_positive(name: str, value: float) -> float:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return math.log(value)
+
+
+def _inverse_softplus(value: float) -> float:
+    return value + math.log(-math.expm1(-value))
+
+
+class Parameterization(nn.Module):
+    """Base class: maps the step's contacts (and optionally q) to per-row values."""
+
+    def forward(
+        self,
+        contacts: Contacts,
+        facets: int,
+        q: torch.Tensor | None = None,
+        stiffness: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        raise NotImplementedError
+
+
+class Constant(Parameterization):
+    """One value for every row, stored as its log so it stays positive while learned."""
+
+    def __init__(self, value: float = 1.0, learnable: bool = True):
+        super().__init__()
+        log_value = torch.tensor(_log_positive("value", value))
+        if learnable:
+            self.log_value = nn.Parameter(log_value)
+        else:
+            self.register_buffer("log_value", log_value)
+
+    def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
+        return self.log_value.exp()
+
+
+class PerRow(Parameterization):
+    """A learnable value per dual-cone row (slot × facet): a fixed diagonal K."""
+
+    def __init__(self, rows: int, value: float = 1.0):
+        super().__init__()
+        if not isinstance(rows, int) or rows < 1:
+            raise ValueError(f"rows must be a positive integer, got {rows!r}")
+        self.log_value = nn.Parameter(torch.full((rows,), _log_positive("value", value)))
+
+    def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
+        rows = contacts.slots * facets
+        if rows != self.log_value.shape[0]:
+            raise ValueError(
+                f"contacts have {rows} rows (slots {contacts.slots} × facets {facets}) but this "
+                f"PerRow parameterization holds {self.log_value.shape[0]}"
+            )
+        return self.log_value.exp()
+
+
+def _mlp(inputs: int, hidden: int, outputs: int, value: float) -> nn.Sequential:
+    """Two hidden tanh layers; starts near ``value`` everywhere (small last layer)."""
+    net = nn.Sequential(
+        nn.Linear(inputs, hidden), nn.Tanh(),
+        nn.Linear(hidden, hidden), nn.Tanh(),
+        nn.Linear(hidden, outputs),
+    )
+    with torch.no_grad():
+        net[-1].weight.mul_(0.01)
+        net[-1].bias.fill_(_inverse_softplus(value))
+    return net
+
+
+class ContactNetwork(Parameterization):
+    """K per contact from its features (φ, μ, world normal), shared by the contact's facets.
+
+    Features: ``[φ/scale, μ, n_x, n_y, n_z]``; the normal is taken from ``contacts.frame`` and
+    zero when the contacts carry none.
+    """
+
+    features = 5
+
+    def __init__(self, hidden: int = 32, value: float = 1.0, distance_scale: float = 0.01):
+        super().__init__()
+        _log_positive("distance_scale", distance_scale)
+        self.distance_scale = distance_scale
+        self.net = _mlp(self.features, hidden, 1, value)
+
+    def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
+        dtype = self.net[0].weight.dtype
+        phi = (contacts.phi / self.distance_scale).clamp(-10.0, 10.0).to(dtype)
+        if contacts.frame is not None:
+            normal = contacts.frame[..., 0, :].to(dtype)
+        else:
+            normal = phi.new_zeros((*phi.shape, 3))
+        features = torch.cat([phi.unsqueeze(-1), contacts.mu.to(dtype).unsqueeze(-1), normal], -1)
+        per_contact = F.softplus(self.net(features).squeeze(-1))
+        return per_contact.repeat_interleave(facets, dim=-1)
+
+
+class StateNetwork(Parameterization):
+    """K per row from the configuration q: an MLP ``q ↦ (nc·n_d,)`` positive values."""
+
+    def __init__(self, nq: int, rows: int, hidden: int = 64, value: float = 1.0):
+        super().__init__()
+        for name, n in (("nq", nq), ("rows", rows)):
+            if not isinstance(n, int) or n < 1:
+                raise ValueError(f"{name} must be a positive integer, got {n!r}")
+        self.net = _mlp(nq, hidden, rows, value)
+
+    def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
+        if q is None:
+            raise ValueError("q is required by StateNetwork: pass q=(..., nq) to the model")
+        rows = contacts.slots * facets
+        if rows != self.net[-1].out_features:
+            raise ValueError(
+                f"contacts have {rows} rows but this StateNetwork outputs {self.net[-1].out_features}"
+            )
+        return F.softplus(self.net(q.to(self.net[0].weight.dtype)))
+
+
+class Relative(Parameterization):
+    """Damping as a learnable multiple of the stiffness: D = ratio·K (the paper uses 0.1)."""
+
+    def __init__(self, ratio: float = 0.1, learnable: bool = True):
+        super().__init__()
+        log_ratio = torch.tensor(_log_positive("ratio", ratio))
+        if learnable:
+            self.log_ratio = nn.Parameter(log_ratio)
+        else:
+            self.register_buffer("log_ratio", log_ratio)
+
+    def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
+        if stiffness is None:
+            raise ValueError("Relative damping needs the stiffness K it scales")
+        return self.log_ratio.exp() * stiffness
+
+
+PARAMETERIZATIONS: dict[str, type[Parameterization]] = {
+    "constant": Constant,
+    "per_row": PerRow,
+    "contact_network": ContactNetwork,
+    "state_network": StateNetwork,
+    "relative": Relative,
+}
+
+
+def parameterization(spec: Parameterization | float | str, **kwargs) -> Parameterization:
+    """Build a parameterization from a module (returned as is), a float (a constant) or a name."""
+    if isinstance(spec, Parameterization):
+        return spec
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return Constant(float(spec), **kwargs)
+    if isinstance(spec, str) and spec in PARAMETERIZATIONS:
+        return PARAMETERIZATIONS[spec](**kwargs)
+    raise ValueError(
+        f"expected a Parameterization, a positive float or one of {sorted(PARAMETERIZATIONS)}, "
+        f"got {spec!r}"
+    )

@@ -1,0 +1,114 @@
+"""The step's metric Q and linear term b: quasi-dynamic and full-dynamic systems."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from torchcontact.validation import check_finite, check_positive, check_shape, check_tensor
+
+
+def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
+    x = torch.as_tensor(value, dtype=torch.get_default_dtype())
+    if x.dim() == 0 and size is not None:
+        x = x.expand(size).clone()
+    check_shape(name, x, f"({size if size is not None else 'n'},)",
+                x.dim() == 1 and (size is None or x.shape[0] == size))
+    check_finite(name, x)
+    return x
+
+
+class QuasiDynamic(nn.Module):
+    """Quasi-dynamic system: ``Q = blkdiag(εMₒ/h², Kᵣ)``, ``b = (τₒ, Kᵣu + τᵣ)``.
+
+    The robot is a stiff position-controlled spring: without contact it moves by exactly ``u``
+    in one step; the object is nearly massless (ε small) and moves only when pushed.
+
+    Args:
+        object_metric: ``(n_o,)`` εMₒ/h², the object's (diagonal) metric [N/m, N·m/rad].
+        robot_stiffness: ``(n_r,)`` or a float, the robot's stiffness Kᵣ [N/m or N·m/rad].
+        object_force: ``(n_o,)`` τₒ, the object's constant generalized force (gravity) [N, N·m].
+        object_dofs: the object's velocity indices in v; default the first n_o. The robot
+            takes the remaining indices in order.
+        n_robot: the robot's DoF count when ``robot_stiffness`` is a float.
+
+    Call: ``system(u, robot_force=None)`` with ``u: (..., n_r)`` the robot's commanded
+    displacement [m or rad] and ``robot_force: (..., n_r)`` τᵣ; returns ``Q: (nv,)`` and
+    ``b: (..., nv)``.
+    """
+
+    def __init__(
+        self,
+        object_metric,
+        robot_stiffness,
+        object_force,
+        object_dofs: Sequence[int] | None = None,
+        n_robot: int | None = None,
+    ):
+        super().__init__()
+        metric = _vector("object_metric", object_metric)
+        check_positive("object_metric", metric)
+        n_o = metric.shape[0]
+        if n_robot is None and torch.as_tensor(robot_stiffness).dim() == 0:
+            raise ValueError("n_robot is required when robot_stiffness is a float")
+        stiffness = _vector("robot_stiffness", robot_stiffness, n_robot)
+        check_positive("robot_stiffness", stiffness)
+        n_r = stiffness.shape[0]
+        nv = n_o + n_r
+        object_dofs = list(range(n_o)) if object_dofs is None else [int(i) for i in object_dofs]
+        if len(object_dofs) != n_o or len(set(object_dofs)) != n_o or not all(
+            0 <= i < nv for i in object_dofs
+        ):
+            raise ValueError(f"object_dofs must be {n_o} distinct indices in [0, {nv}), got {object_dofs}")
+        robot_dofs = [i for i in range(nv) if i not in set(object_dofs)]
+        order = torch.tensor(object_dofs + robot_dofs)
+        self.register_buffer("object_metric", metric)
+        self.register_buffer("robot_stiffness", stiffness)
+        self.register_buffer("object_force", _vector("object_force", object_force, n_o))
+        self.register_buffer("_from_blocks", torch.argsort(order), persistent=False)
+        self.n_object, self.n_robot = n_o, n_r
+
+    @property
+    def nv(self) -> int:
+        return self.n_object + self.n_robot
+
+    def metric(self) -> torch.Tensor:
+        """``Q: (nv,)`` the diagonal metric."""
+        return torch.cat([self.object_metric, self.robot_stiffness])[self._from_blocks]
+
+    def forward(self, u: torch.Tensor, robot_force: torch.Tensor | None = None):
+        check_tensor("u", u)
+        check_shape("u", u, f"(..., {self.n_robot})", u.dim() >= 1 and u.shape[-1] == self.n_robot)
+        robot = self.robot_stiffness * u
+        if robot_force is not None:
+            robot = robot + robot_force
+        obj = self.object_force.to(robot.dtype).expand(*robot.shape[:-1], self.n_object)
+        b = torch.cat([obj, robot], dim=-1)[..., self._from_blocks]
+        return self.metric().to(b.dtype), b
+
+
+def full_dynamic(
+    mass_matrix: torch.Tensor, velocity: torch.Tensor, force: torch.Tensor, h: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Full-dynamic system: ``Q = M/h²``, ``b = Mv/h + τ``.
+
+    Args:
+        mass_matrix: ``(..., nv, nv)`` joint-space inertia M(q) [kg, kg·m²].
+        velocity: ``(..., nv)`` current velocity v.
+        force: ``(..., nv)`` generalized force τ = applied − bias (Coriolis, gravity) [N, N·m].
+        h: time step [s].
+
+    Returns ``Q: (..., nv, nv)`` and ``b: (..., nv)``; the contact-free step is then
+    ``v + h M⁻¹τ`` (semi-implicit Euler).
+    """
+    for name, x in (("mass_matrix", mass_matrix), ("velocity", velocity), ("force", force)):
+        check_tensor(name, x)
+        check_finite(name, x)
+    nv = velocity.shape[-1]
+    check_shape("mass_matrix", mass_matrix, f"(..., {nv}, {nv})", mass_matrix.shape[-2:] == (nv, nv))
+    check_shape("force", force, f"(..., {nv})", force.shape[-1:] == (nv,))
+    check_positive("h", h)
+    b = (mass_matrix @ velocity.unsqueeze(-1)).squeeze(-1) / h + force
+    return mass_matrix / (h * h), b
