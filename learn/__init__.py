@@ -1,1 +1,4 @@
-"""Learning the contact stiffness K(q) and damping D(q) from data (installed as torchcontact.learn)."""
+"""Learning the contact stiffness K(q) and damping D(q) from data.
+
+Installed as ``torchcontact.learn``.
+"""

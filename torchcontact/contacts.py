@@ -55,21 +55,35 @@ class Contacts:
         nc, nv = self.jac_normal.shape[-2:] if self.jac_normal.dim() >= 2 else (-1, -1)
         batch = self.phi.shape[:-1]
         check_shape("phi", self.phi, "(..., nc)", self.phi.dim() >= 1)
-        check_shape("jac_normal", self.jac_normal, f"{(*batch, self.phi.shape[-1])} + (nv,)",
-                    self.jac_normal.shape[:-1] == self.phi.shape)
-        check_shape("jac_tangent", self.jac_tangent, f"{(*batch, nc, 2, nv)}",
-                    self.jac_tangent.shape == (*batch, nc, 2, nv))
+        check_shape(
+            "jac_normal",
+            self.jac_normal,
+            f"{(*batch, self.phi.shape[-1])} + (nv,)",
+            self.jac_normal.shape[:-1] == self.phi.shape,
+        )
+        check_shape(
+            "jac_tangent",
+            self.jac_tangent,
+            f"{(*batch, nc, 2, nv)}",
+            self.jac_tangent.shape == (*batch, nc, 2, nv),
+        )
         check_shape("mu", self.mu, f"{tuple(self.phi.shape)}", self.mu.shape == self.phi.shape)
-        check_shape("active", self.active, f"{tuple(self.phi.shape)}",
-                    self.active.shape == self.phi.shape)
+        check_shape(
+            "active", self.active, f"{tuple(self.phi.shape)}", self.active.shape == self.phi.shape
+        )
         if self.active.dtype != torch.bool:
             raise TypeError(f"active must be a bool tensor, got {self.active.dtype}")
         if self.frame is not None:
-            check_shape("frame", self.frame, f"{(*batch, nc, 3, 3)}",
-                        self.frame.shape == (*batch, nc, 3, 3))
+            check_shape(
+                "frame", self.frame, f"{(*batch, nc, 3, 3)}", self.frame.shape == (*batch, nc, 3, 3)
+            )
         if self.position is not None:
-            check_shape("position", self.position, f"{(*batch, nc, 3)}",
-                        self.position.shape == (*batch, nc, 3))
+            check_shape(
+                "position",
+                self.position,
+                f"{(*batch, nc, 3)}",
+                self.position.shape == (*batch, nc, 3),
+            )
         for name in ("phi", "jac_normal", "jac_tangent"):
             check_finite(name, getattr(self, name))
         check_nonnegative("mu", self.mu)
@@ -136,7 +150,9 @@ class Contacts:
         active = self.active.repeat_interleave(facets, dim=-1)
         return jac, phi, active
 
-    def impulses(self, row_impulse: torch.Tensor, facets: int = 4) -> tuple[torch.Tensor, torch.Tensor]:
+    def impulses(
+        self, row_impulse: torch.Tensor, facets: int = 4
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Split per-row impulses β ``(..., nc·n_d)`` into contact-frame impulses.
 
         Returns ``normal (..., nc)`` = Σⱼ βᵢⱼ and ``friction (..., nc, 2)`` = μᵢ Σⱼ βᵢⱼ (cos θⱼ,

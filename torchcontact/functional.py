@@ -92,7 +92,9 @@ def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
         torch.broadcast_shapes(*batches.values())
     except RuntimeError:
         shapes = ", ".join(f"{k}{tuple(v)}" for k, v in batches.items())
-        raise ValueError(f"batch shapes of Q, b, jac and phi must broadcast, got {shapes}") from None
+        raise ValueError(
+            f"batch shapes of Q, b, jac and phi must broadcast, got {shapes}"
+        ) from None
     for name, x in (("b", b), ("jac", jac), ("phi", phi)):
         check_finite(name, x)
     check_positive("h", h)

@@ -37,8 +37,12 @@ class JointLayout:
                 if joint == "free":
                     linear_q += [iq, iq + 1, iq + 2]
                     linear_v += [iv, iv + 1, iv + 2]
-                quat_q.append(list(range(iq + 3, iq + 7)) if joint == "free" else list(range(iq, iq + 4)))
-                angular_v.append(list(range(iv + 3, iv + 6)) if joint == "free" else list(range(iv, iv + 3)))
+                quat_q.append(
+                    list(range(iq + 3, iq + 7)) if joint == "free" else list(range(iq, iq + 4))
+                )
+                angular_v.append(
+                    list(range(iv + 3, iv + 6)) if joint == "free" else list(range(iv, iv + 3))
+                )
             dq, dv = JOINT_SIZES[joint]
             iq, iv = iq + dq, iv + dv
         self.nq, self.nv = iq, iv

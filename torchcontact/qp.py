@@ -31,9 +31,7 @@ def _solve_one(Q, b, jac, phi, h, settings) -> tuple[np.ndarray, np.ndarray]:
     if m == 0:  # no constraint: the unconstrained minimizer
         return np.linalg.solve(metric, b) / h, np.zeros(0)
     solver = osqp.OSQP()
-    solver.setup(
-        P, -h * b, sparse.csc_matrix(jac), -phi / h, np.full(m, np.inf), **settings
-    )
+    solver.setup(P, -h * b, sparse.csc_matrix(jac), -phi / h, np.full(m, np.inf), **settings)
     result = solver.solve()
     if result.info.status_val != osqp.SolverStatus.OSQP_SOLVED:
         raise RuntimeError(f"OSQP did not solve the contact QP: status {result.info.status!r}")
@@ -88,6 +86,6 @@ def qp_solve(
         rows = keep[i]
         v[i], beta[i, rows] = _solve_one(Qs[i], bs[i], js[i][rows], ps[i][rows], hs[i], options)
     out = {"dtype": b.dtype, "device": b.device}
-    return torch.from_numpy(v).reshape(*batch, nv).to(**out), torch.from_numpy(
-        beta
-    ).reshape(*batch, m).to(**out)
+    return torch.from_numpy(v).reshape(*batch, nv).to(**out), torch.from_numpy(beta).reshape(
+        *batch, m
+    ).to(**out)

@@ -77,8 +77,10 @@ class PerRow(Parameterization):
 def _mlp(inputs: int, hidden: int, outputs: int, value: float) -> nn.Sequential:
     """Two hidden tanh layers; starts near ``value`` everywhere (small last layer)."""
     net = nn.Sequential(
-        nn.Linear(inputs, hidden), nn.Tanh(),
-        nn.Linear(hidden, hidden), nn.Tanh(),
+        nn.Linear(inputs, hidden),
+        nn.Tanh(),
+        nn.Linear(hidden, hidden),
+        nn.Tanh(),
         nn.Linear(hidden, outputs),
     )
     with torch.no_grad():
@@ -130,7 +132,8 @@ class StateNetwork(Parameterization):
         rows = contacts.slots * facets
         if rows != self.net[-1].out_features:
             raise ValueError(
-                f"contacts have {rows} rows but this StateNetwork outputs {self.net[-1].out_features}"
+                f"contacts have {rows} rows but this StateNetwork outputs "
+                f"{self.net[-1].out_features}"
             )
         return F.softplus(self.net(q.to(self.net[0].weight.dtype)))
 

@@ -14,8 +14,12 @@ def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
     x = torch.as_tensor(value, dtype=torch.get_default_dtype())
     if x.dim() == 0 and size is not None:
         x = x.expand(size).clone()
-    check_shape(name, x, f"({size if size is not None else 'n'},)",
-                x.dim() == 1 and (size is None or x.shape[0] == size))
+    check_shape(
+        name,
+        x,
+        f"({size if size is not None else 'n'},)",
+        x.dim() == 1 and (size is None or x.shape[0] == size),
+    )
     check_finite(name, x)
     return x
 
@@ -58,10 +62,14 @@ class QuasiDynamic(nn.Module):
         n_r = stiffness.shape[0]
         nv = n_o + n_r
         object_dofs = list(range(n_o)) if object_dofs is None else [int(i) for i in object_dofs]
-        if len(object_dofs) != n_o or len(set(object_dofs)) != n_o or not all(
-            0 <= i < nv for i in object_dofs
+        if (
+            len(object_dofs) != n_o
+            or len(set(object_dofs)) != n_o
+            or not all(0 <= i < nv for i in object_dofs)
         ):
-            raise ValueError(f"object_dofs must be {n_o} distinct indices in [0, {nv}), got {object_dofs}")
+            raise ValueError(
+                f"object_dofs must be {n_o} distinct indices in [0, {nv}), got {object_dofs}"
+            )
         robot_dofs = [i for i in range(nv) if i not in set(object_dofs)]
         order = torch.tensor(object_dofs + robot_dofs)
         self.register_buffer("object_metric", metric)
@@ -107,7 +115,9 @@ def full_dynamic(
         check_tensor(name, x)
         check_finite(name, x)
     nv = velocity.shape[-1]
-    check_shape("mass_matrix", mass_matrix, f"(..., {nv}, {nv})", mass_matrix.shape[-2:] == (nv, nv))
+    check_shape(
+        "mass_matrix", mass_matrix, f"(..., {nv}, {nv})", mass_matrix.shape[-2:] == (nv, nv)
+    )
     check_shape("force", force, f"(..., {nv})", force.shape[-1:] == (nv,))
     check_positive("h", h)
     b = (mass_matrix @ velocity.unsqueeze(-1)).squeeze(-1) / h + force

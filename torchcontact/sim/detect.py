@@ -87,14 +87,21 @@ class ContactDetector:
 
     def __call__(self, qpos) -> Contacts:
         """Contacts at ``qpos: (nq,)`` or a batch ``(..., nq)`` (array or tensor)."""
-        qpos = np.asarray(qpos.detach().cpu() if isinstance(qpos, torch.Tensor) else qpos,
-                          dtype=np.float64)
+        qpos = np.asarray(
+            qpos.detach().cpu() if isinstance(qpos, torch.Tensor) else qpos, dtype=np.float64
+        )
         if qpos.ndim == 0 or qpos.shape[-1] != self.model.nq:
             raise ValueError(f"qpos must have shape (..., {self.model.nq}), got {qpos.shape}")
         flat = qpos.reshape(-1, self.model.nq)
         arrays = [self._detect(q) for q in flat]
-        stacked = {k: np.stack([a[k] for a in arrays]).reshape(*qpos.shape[:-1], *arrays[0][k].shape)
-                   for k in arrays[0]} if arrays else {}
+        stacked = (
+            {
+                k: np.stack([a[k] for a in arrays]).reshape(*qpos.shape[:-1], *arrays[0][k].shape)
+                for k in arrays[0]
+            }
+            if arrays
+            else {}
+        )
         return self._to_contacts(stacked)
 
     def _detect(self, qpos: np.ndarray) -> dict[str, np.ndarray]:
@@ -116,9 +123,13 @@ class ContactDetector:
         geoms = d.contact.geom[: d.ncon]
         body1 = m.geom_bodyid[geoms[:, 0]]
         body2 = m.geom_bodyid[geoms[:, 1]]
-        keep = np.array([(b1 in self.bodies or b2 in self.bodies)
-                         and frozenset((b1, b2)) not in self.exclude
-                         for b1, b2 in zip(body1, body2)], dtype=bool)
+        keep = np.array(
+            [
+                (b1 in self.bodies or b2 in self.bodies) and frozenset((b1, b2)) not in self.exclude
+                for b1, b2 in zip(body1, body2, strict=True)
+            ],
+            dtype=bool,
+        )
         return np.flatnonzero(keep)
 
     def _extract(self, m: mujoco.MjModel, d: mujoco.MjData) -> dict[str, np.ndarray]:
@@ -143,9 +154,9 @@ class ContactDetector:
         for slot, i in enumerate(kept):
             contact = d.contact[i]
             frame = contact.frame.reshape(3, 3)  # rows: normal (geom1 → geom2), t₁, t₂
-            relative = self._point_jacobian(m, d, contact.geom2, contact.pos) - self._point_jacobian(
-                m, d, contact.geom1, contact.pos
-            )
+            relative = self._point_jacobian(
+                m, d, contact.geom2, contact.pos
+            ) - self._point_jacobian(m, d, contact.geom1, contact.pos)
             rows = frame @ relative
             out["phi"][slot] = contact.dist
             out["jac_normal"][slot] = rows[0]
