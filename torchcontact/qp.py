@@ -57,7 +57,9 @@ def qp_solve(
         v: ``(..., nv)`` next velocity; beta: ``(..., m)`` row impulses β ≥ 0.
     """
     _check_step_inputs(Q, b, jac, phi, h, 1.0, None, None)
-    if any(isinstance(x, torch.Tensor) and x.requires_grad for x in (Q, b, jac, phi, h)):
+    if torch.is_grad_enabled() and any(
+        isinstance(x, torch.Tensor) and x.requires_grad for x in (Q, b, jac, phi, h)
+    ):
         raise ValueError(
             "the QP model is not differentiable: call it on tensors without requires_grad "
             "(or under torch.no_grad())"
