@@ -8,6 +8,8 @@ a time on the CPU in float64 with tight tolerances; not differentiable (yet).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import osqp
 import scipy.sparse as sparse
@@ -32,7 +34,7 @@ def _solve_one(Q, b, jac, phi, h, settings) -> tuple[np.ndarray, np.ndarray]:
         return np.linalg.solve(metric, b) / h, np.zeros(0)
     solver = osqp.OSQP()
     solver.setup(P, -h * b, sparse.csc_matrix(jac), -phi / h, np.full(m, np.inf), **settings)
-    result = solver.solve()
+    result = solver.solve(raise_error=False)
     if result.info.status_val != osqp.SolverStatus.OSQP_SOLVED:
         raise RuntimeError(f"OSQP did not solve the contact QP: status {result.info.status!r}")
     return result.x, -result.y  # OSQP's y ≤ 0 on active lower bounds; β = −y
@@ -75,11 +77,17 @@ def qp_solve(
     )
 
     def flat(x, tail):
-        return x.detach().to("cpu", torch.float64).expand(*batch, *tail).reshape(-1, *tail).numpy()
+        return (
+            x.detach()
+            .to("cpu", torch.float64)
+            .expand(*batch, *tail)
+            .reshape(math.prod(batch), *tail)
+            .numpy()
+        )
 
     Qs = flat(Q, (nv, nv) if dense else (nv,))
     bs, js, ps = flat(b, (nv,)), flat(jac, (m, nv)), flat(phi, (m,))
-    keep = active.to("cpu").expand(*batch, m).reshape(-1, m).numpy()
+    keep = active.to("cpu").expand(*batch, m).reshape(math.prod(batch), m).numpy()
     hs = h_t.expand(batch).reshape(-1).numpy()
     v = np.zeros((bs.shape[0], nv))
     beta = np.zeros((bs.shape[0], m))

@@ -11,7 +11,9 @@ from torchcontact.validation import check_finite, check_positive, check_shape, c
 
 
 def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
-    x = torch.as_tensor(value, dtype=torch.get_default_dtype())
+    x = torch.as_tensor(value)
+    if not x.is_floating_point():
+        x = x.to(torch.get_default_dtype())
     if x.dim() == 0 and size is not None:
         x = x.expand(size).clone()
     check_shape(

@@ -94,15 +94,14 @@ class ContactDetector:
             raise ValueError(f"qpos must have shape (..., {self.model.nq}), got {qpos.shape}")
         flat = qpos.reshape(-1, self.model.nq)
         arrays = [self._detect(q) for q in flat]
-        stacked = (
-            {
-                k: np.stack([a[k] for a in arrays]).reshape(*qpos.shape[:-1], *arrays[0][k].shape)
-                for k in arrays[0]
-            }
-            if arrays
-            else {}
-        )
-        return self._to_contacts(stacked)
+        padding = self._padding(self.model.nv)
+        batched = {
+            key: (np.stack([a[key] for a in arrays]) if arrays else value[None][:0]).reshape(
+                *qpos.shape[:-1], *value.shape
+            )
+            for key, value in padding.items()
+        }
+        return self._to_contacts(batched)
 
     def _detect(self, qpos: np.ndarray) -> dict[str, np.ndarray]:
         m, d = self.model, self.data
@@ -141,16 +140,7 @@ class ContactDetector:
                     "overflow='deepest' to keep the deepest ones"
                 )
             kept = kept[np.argsort(d.contact.dist[kept], kind="stable")[: self.slots]]
-        nc, nv = self.slots, m.nv
-        out = {
-            "phi": np.full(nc, PAD_DISTANCE),
-            "jac_normal": np.zeros((nc, nv)),
-            "jac_tangent": np.zeros((nc, 2, nv)),
-            "mu": np.zeros(nc),
-            "active": np.zeros(nc, dtype=bool),
-            "frame": np.tile(np.eye(3), (nc, 1, 1)),
-            "position": np.zeros((nc, 3)),
-        }
+        out = self._padding(m.nv)
         for slot, i in enumerate(kept):
             contact = d.contact[i]
             frame = contact.frame.reshape(3, 3)  # rows: normal (geom1 → geom2), t₁, t₂
@@ -166,6 +156,19 @@ class ContactDetector:
             out["frame"][slot] = frame
             out["position"][slot] = contact.pos
         return out
+
+    def _padding(self, nv: int) -> dict[str, np.ndarray]:
+        """Arrays of ``slots`` empty slots (the layout of one state's contacts)."""
+        nc = self.slots
+        return {
+            "phi": np.full(nc, PAD_DISTANCE),
+            "jac_normal": np.zeros((nc, nv)),
+            "jac_tangent": np.zeros((nc, 2, nv)),
+            "mu": np.zeros(nc),
+            "active": np.zeros(nc, dtype=bool),
+            "frame": np.tile(np.eye(3), (nc, 1, 1)),
+            "position": np.zeros((nc, 3)),
+        }
 
     def _point_jacobian(self, m, d, geom: int, point: np.ndarray) -> np.ndarray:
         mujoco.mj_jac(m, d, self._jacp, None, point, m.geom_bodyid[geom])

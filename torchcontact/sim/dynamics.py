@@ -23,7 +23,10 @@ def joint_layout(model: mujoco.MjModel) -> JointLayout:
 def mass_matrix(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
     """Dense joint-space inertia M(q) ``(nv, nv)``; ``data`` must have run ``mj_forward``."""
     dense = np.zeros((model.nv, model.nv))
-    mujoco.mj_fullM(model, dense, data.qM)
+    if hasattr(data, "qM"):  # MuJoCo 3: mj_fullM(m, dst, qM)
+        mujoco.mj_fullM(model, dense, data.qM)
+    else:  # MuJoCo 4: mj_fullM(m, d, dst)
+        mujoco.mj_fullM(model, data, dense)
     return dense
 
 

@@ -1,0 +1,188 @@
+"""integrate (q ⊕ h·v) against MuJoCo's mj_integratePos, batched and differentiable."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from torchcontact import JointLayout, integrate
+from torchcontact.sim import joint_layout
+
+XML = """
+<mujoco>
+  <worldbody>
+    <body name="free"><freejoint/><geom size="0.1"/>
+      <body name="ball" pos="0.2 0 0"><joint type="ball"/><geom size="0.05"/>
+        <body pos="0.1 0 0"><joint type="hinge" axis="0 1 0"/><geom size="0.05"/></body>
+      </body>
+    </body>
+    <body pos="1 0 0"><joint type="slide" axis="1 0 0"/><joint type="hinge" axis="0 0 1"/>
+      <geom size="0.05"/>
+      <body><joint type="ball"/><geom size="0.05"/></body>
+    </body>
+    <body pos="0 1 0"><freejoint/><geom size="0.05"/></body>
+  </worldbody>
+</mujoco>
+"""
+MODEL = mujoco.MjModel.from_xml_string(XML)
+QUATERNIONS = [(3, 7), (7, 11), (14, 18), (21, 25)]  # qpos slices of the four quaternions
+
+
+def _random_state(rng: np.random.Generator, model: mujoco.MjModel = MODEL):
+    q = rng.normal(size=model.nq)
+    for start, stop in QUATERNIONS:
+        q[start:stop] /= np.linalg.norm(q[start:stop])
+    return q, rng.normal(size=model.nv) * 3
+
+
+def _mujoco(q: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
+    out = q.copy()
+    mujoco.mj_integratePos(MODEL, out, v, h)
+    return out
+
+
+def _assert_same_configuration(actual: np.ndarray, expected: np.ndarray, atol=1e-10):
+    """Equal up to the sign of each quaternion (q and −q are the same rotation)."""
+    actual, expected = actual.copy(), expected.copy()
+    for start, stop in QUATERNIONS:
+        if actual[start:stop] @ expected[start:stop] < 0:
+            actual[start:stop] *= -1
+    np.testing.assert_allclose(actual, expected, rtol=0, atol=atol)
+
+
+def test_joint_layout_of_the_model():
+    layout = joint_layout(MODEL)
+    assert layout.joints == ("free", "ball", "hinge", "slide", "hinge", "ball", "free")
+    assert (layout.nq, layout.nv) == (MODEL.nq, MODEL.nv) == (25, 21)
+
+
+@pytest.mark.parametrize("h", [1e-3, 0.05, 0.7])
+def test_matches_mj_integrate_pos(h):
+    rng = np.random.default_rng(0)
+    layout = joint_layout(MODEL)
+    for _ in range(20):
+        q, v = _random_state(rng)
+        ours = integrate(torch.tensor(q), torch.tensor(v), h, layout).numpy()
+        _assert_same_configuration(ours, _mujoco(q, v, h))
+
+
+def test_large_rotation_and_zero_velocity():
+    rng = np.random.default_rng(1)
+    layout = joint_layout(MODEL)
+    q, v = _random_state(rng)
+    v *= 10  # rotations of several turns in one step
+    _assert_same_configuration(
+        integrate(torch.tensor(q), torch.tensor(v), 1.0, layout).numpy(), _mujoco(q, v, 1.0)
+    )
+    still = integrate(torch.tensor(q), torch.zeros(MODEL.nv, dtype=torch.float64), 0.1, layout)
+    np.testing.assert_allclose(still.numpy(), q, rtol=0, atol=1e-15)
+
+
+def test_batched_shapes_and_tensor_h():
+    rng = np.random.default_rng(2)
+    layout = joint_layout(MODEL)
+    B, T = 3, 4
+    states = [_random_state(rng) for _ in range(B * T)]
+    q = torch.tensor(np.stack([s[0] for s in states])).reshape(B, T, -1)
+    v = torch.tensor(np.stack([s[1] for s in states])).reshape(B, T, -1)
+    h = torch.tensor(rng.uniform(0.01, 0.2, size=(B, T)))
+    out = integrate(q, v, h, layout)
+    assert out.shape == (B, T, MODEL.nq)
+    for i in range(B):
+        for j in range(T):
+            expected = _mujoco(q[i, j].numpy(), v[i, j].numpy(), float(h[i, j]))
+            _assert_same_configuration(out[i, j].numpy(), expected)
+    # (B,) batch with a (B,) step.
+    flat = integrate(q[:, 0], v[:, 0], h[:, 0], layout)
+    assert flat.shape == (B, MODEL.nq)
+    torch.testing.assert_close(flat, out[:, 0], rtol=0, atol=1e-15)
+    # One q shared by a batch of velocities.
+    shared = integrate(q[0, 0], v[:, 0], 0.1, layout)
+    assert shared.shape == (B, MODEL.nq)
+    for i in range(B):
+        _assert_same_configuration(
+            shared[i].numpy(), _mujoco(q[0, 0].numpy(), v[i, 0].numpy(), 0.1)
+        )
+
+
+def test_gradient_is_finite_at_zero_rotation_and_matches_finite_differences():
+    rng = np.random.default_rng(3)
+    layout = joint_layout(MODEL)
+    q, v = _random_state(rng)
+    v[:] = 0  # zero angular velocity everywhere: the exp map's 0/0 point
+    q_t = torch.tensor(q, requires_grad=True)
+    v_t = torch.tensor(v, requires_grad=True)
+    out = integrate(q_t, v_t, 0.1, layout)
+    (gq, gv) = torch.autograd.grad(out.sum(), (q_t, v_t))
+    assert torch.isfinite(gq).all() and torch.isfinite(gv).all()
+    assert torch.autograd.gradcheck(lambda a, b: integrate(a, b, 0.1, layout), (q_t, v_t))
+    # Away from zero, and with respect to a tensor step h.
+    h = torch.tensor(0.3, dtype=torch.float64, requires_grad=True)
+    v_t = torch.tensor(_random_state(rng)[1], requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b, c: integrate(a, b, c, layout), (q_t, v_t, h))
+
+
+def test_small_rotation_is_first_order_exact():
+    """At tiny ω, ``q ⊗ exp(hω)`` has derivative ``½ q ⊗ (0, ω)`` with respect to h."""
+    layout = JointLayout(["ball"])
+    q = torch.tensor([0.5, 0.5, -0.5, 0.5], dtype=torch.float64)
+    omega = torch.tensor([0.3, -1.2, 0.7], dtype=torch.float64)
+    h = 1e-7
+    rate = (integrate(q, omega, h, layout) - integrate(q, omega, -h, layout)) / (2 * h)
+    w, x, y, z = q
+    a, b, c = omega
+    expected = 0.5 * torch.stack(
+        [
+            -x * a - y * b - z * c,
+            w * a + y * c - z * b,
+            w * b - x * c + z * a,
+            w * c + x * b - y * a,
+        ]
+    )
+    torch.testing.assert_close(rate, expected, rtol=1e-7, atol=1e-9)
+
+
+def test_layout_without_quaternions_or_without_linear_joints():
+    slides = JointLayout(["slide", "hinge", "slide"])
+    q, v = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([0.5, -1.0, 2.0])
+    torch.testing.assert_close(integrate(q, v, 0.1, slides), q + 0.1 * v)
+    balls = JointLayout(["ball"])
+    out = integrate(torch.tensor([1.0, 0, 0, 0]), torch.tensor([0.0, 0.0, np.pi]), 1.0, balls)
+    torch.testing.assert_close(out, torch.tensor([0.0, 0, 0, 1]), atol=1e-6, rtol=0)
+
+
+def test_float32_and_unit_quaternions():
+    rng = np.random.default_rng(4)
+    layout = joint_layout(MODEL)
+    q, v = _random_state(rng)
+    out = integrate(
+        torch.tensor(q, dtype=torch.float32), torch.tensor(v, dtype=torch.float32), 0.05, layout
+    )
+    assert out.dtype == torch.float32
+    _assert_same_configuration(out.double().numpy(), _mujoco(q, v, 0.05), atol=1e-5)
+    for start, stop in QUATERNIONS:
+        assert float(out[start:stop].norm()) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "q_size, v_size, name", [(24, 21, "q"), (25, 20, "v"), (25, 22, "v"), (7, 21, "q")]
+)
+def test_bad_shapes_raise_naming_the_argument(q_size, v_size, name):
+    layout = joint_layout(MODEL)
+    with pytest.raises(ValueError, match=rf"^{name} must have shape"):
+        integrate(torch.zeros(q_size), torch.zeros(v_size), 0.1, layout)
+
+
+def test_scalar_and_integer_inputs_are_rejected():
+    layout = JointLayout(["slide"])
+    with pytest.raises(ValueError, match="q"):
+        integrate(torch.tensor(1.0), torch.zeros(1), 0.1, layout)
+    with pytest.raises(TypeError, match="v"):
+        integrate(torch.zeros(1), torch.zeros(1, dtype=torch.long), 0.1, layout)
+
+
+def test_unknown_joint_raises():
+    with pytest.raises(ValueError, match="joints"):
+        JointLayout(["free", "planar"])
