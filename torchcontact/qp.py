@@ -22,7 +22,7 @@ OSQP_SETTINGS = {
     "eps_abs": 1e-10,
     "eps_rel": 1e-10,
     "max_iter": 200_000,
-    "polishing": True,
+    "polishing": False,  # tolerances are already tight; polishing prints to stdout when idle
 }
 
 
