@@ -89,12 +89,24 @@ def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
         "phi": phi.shape[:-1],
     }
     try:
-        torch.broadcast_shapes(*batches.values())
+        batch = torch.broadcast_shapes(*batches.values())
     except RuntimeError:
         shapes = ", ".join(f"{k}{tuple(v)}" for k, v in batches.items())
         raise ValueError(
             f"batch shapes of Q, b, jac and phi must broadcast, got {shapes}"
         ) from None
+    for name, x, target in (
+        ("h", h, batch),
+        ("stiffness", stiffness, (*batch, m)),
+        ("damping", damping, (*batch, m)),
+    ):
+        if isinstance(x, torch.Tensor):
+            try:
+                torch.broadcast_shapes(x.shape, target)
+            except RuntimeError:
+                raise ValueError(
+                    f"{name} must broadcast to {tuple(target)}, got {tuple(x.shape)}"
+                ) from None
     for name, x in (("b", b), ("jac", jac), ("phi", phi)):
         check_finite(name, x)
     check_positive("h", h)

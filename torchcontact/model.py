@@ -6,6 +6,8 @@ Both map one step's metric ``Q``, linear term ``b`` and :class:`Contacts` to the
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -68,10 +70,15 @@ class ComplementarityFree(ContactModel):
         facets: int = 4,
     ):
         super().__init__()
-        if gamma is not None and not (isinstance(gamma, (int, float)) and gamma > 0):
-            raise ValueError(f"gamma must be a positive number or None, got {gamma!r}")
-        self.stiffness = parameterization(stiffness)
-        self.damping = None if damping is None else parameterization(damping)
+        if gamma is not None and not (
+            isinstance(gamma, (int, float))
+            and not isinstance(gamma, bool)
+            and math.isfinite(gamma)
+            and gamma > 0
+        ):
+            raise ValueError(f"gamma must be a positive finite number or None, got {gamma!r}")
+        self.stiffness = parameterization(stiffness, name="stiffness")
+        self.damping = None if damping is None else parameterization(damping, name="damping")
         self.gamma = None if gamma is None else float(gamma)
         self.facets = _check_facets(facets)
 

@@ -24,6 +24,7 @@ def _log_positive(name: str, value: float) -> float:
 
 
 def _inverse_softplus(value: float) -> float:
+    _log_positive("value", value)
     return value + math.log(-math.expm1(-value))
 
 
@@ -164,15 +165,22 @@ PARAMETERIZATIONS: dict[str, type[Parameterization]] = {
 }
 
 
-def parameterization(spec: Parameterization | float | str, **kwargs) -> Parameterization:
-    """Build a parameterization from a module (returned as is), a float (a constant) or a name."""
+def parameterization(
+    spec: Parameterization | float | str, name: str = "spec", **kwargs
+) -> Parameterization:
+    """Build a parameterization from a module (returned as is), a float (a constant) or a name.
+
+    ``name`` is the argument the spec came from, used in error messages.
+    """
     if isinstance(spec, Parameterization):
         return spec
     if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        if not (math.isfinite(spec) and spec > 0):
+            raise ValueError(f"{name} must be a positive finite number, got {spec!r}")
         return Constant(float(spec), **kwargs)
     if isinstance(spec, str) and spec in PARAMETERIZATIONS:
         return PARAMETERIZATIONS[spec](**kwargs)
     raise ValueError(
-        f"expected a Parameterization, a positive float or one of {sorted(PARAMETERIZATIONS)}, "
-        f"got {spec!r}"
+        f"{name} must be a Parameterization, a positive float or one of "
+        f"{sorted(PARAMETERIZATIONS)}, got {spec!r}"
     )

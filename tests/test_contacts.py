@@ -1,0 +1,195 @@
+"""Contacts: padding, dtype moves, dual-cone rows and the split of row impulses."""
+
+import math
+
+import pytest
+import torch
+
+from torchcontact import Contacts, facet_directions
+from torchcontact.contacts import PAD_DISTANCE
+
+
+def random_contacts(
+    nc: int,
+    nv: int,
+    batch: tuple[int, ...] = (),
+    dtype: torch.dtype = torch.float64,
+    mu: float | None = None,
+    inactive: int = 0,
+    generator: torch.Generator | None = None,
+) -> Contacts:
+    """Random contacts with a frame; the last ``inactive`` slots are padding (non-zero Jacobians
+    on purpose, so tests see that the rows are masked); ``mu=None`` draws μ in [0, 1)."""
+
+    def draw(*shape, fn=torch.randn):
+        return fn(*batch, *shape, dtype=dtype, generator=generator)
+
+    active = torch.ones(*batch, nc, dtype=torch.bool)
+    active[..., nc - inactive :] = False
+    return Contacts(
+        phi=0.05 * draw(nc),
+        jac_normal=draw(nc, nv),
+        jac_tangent=draw(nc, 2, nv),
+        mu=draw(nc, fn=torch.rand) if mu is None else torch.full((*batch, nc), mu, dtype=dtype),
+        active=active,
+        frame=torch.linalg.qr(draw(nc, 3, 3)).Q,
+        position=draw(nc, 3),
+    )
+
+
+def test_facet_directions_four_are_exact_axes():
+    expected = torch.tensor([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]], dtype=torch.float64)
+    assert torch.equal(facet_directions(4, torch.float64), expected)
+
+
+@pytest.mark.parametrize("facets", [3, 4, 8, 16])
+def test_facet_directions_are_unit_and_evenly_spaced(facets):
+    d = facet_directions(facets, torch.float64)
+    assert d.shape == (facets, 2)
+    torch.testing.assert_close(d.norm(dim=-1), torch.ones(facets, dtype=torch.float64))
+    angles = torch.atan2(d[:, 1], d[:, 0]).remainder(2 * math.pi)
+    expected = torch.arange(facets, dtype=torch.float64) * 2 * math.pi / facets
+    torch.testing.assert_close(angles, expected)
+
+
+@pytest.mark.parametrize("facets", [2, 0, -4, 4.0, "4", None])
+def test_bad_facets_raise(facets):
+    with pytest.raises(ValueError, match="facets"):
+        facet_directions(facets)
+    with pytest.raises(ValueError, match="facets"):
+        random_contacts(2, 3).dual_rows(facets)
+
+
+@pytest.mark.parametrize("batch", [(), (3,), (2, 3)])
+@pytest.mark.parametrize("facets", [4, 8])
+def test_dual_rows_shapes_and_contact_major_order(batch, facets):
+    nc, nv = 5, 7
+    c = random_contacts(nc, nv, batch, inactive=2)
+    jac, phi, active = c.dual_rows(facets)
+    assert jac.shape == (*batch, nc * facets, nv)
+    assert phi.shape == active.shape == (*batch, nc * facets)
+    assert active.dtype == torch.bool
+    d = facet_directions(facets, torch.float64)
+    for i in range(nc):
+        for j in range(facets):
+            row = i * facets + j
+            expected = c.jac_normal[..., i, :] + c.mu[..., i, None] * (
+                d[j, 0] * c.jac_tangent[..., i, 0, :] + d[j, 1] * c.jac_tangent[..., i, 1, :]
+            )
+            expected = expected * c.active[..., i, None]
+            torch.testing.assert_close(jac[..., row, :], expected, rtol=1e-14, atol=1e-14)
+            assert torch.equal(phi[..., row], c.phi[..., i])
+            assert torch.equal(active[..., row], c.active[..., i])
+
+
+def test_four_facet_rows_are_normal_plus_minus_mu_tangents():
+    c = random_contacts(3, 4)
+    jac, _, _ = c.dual_rows(4)
+    mu = c.mu[:, None]
+    n, t1, t2 = c.jac_normal, c.jac_tangent[:, 0], c.jac_tangent[:, 1]
+    expected = torch.stack([n + mu * t1, n + mu * t2, n - mu * t1, n - mu * t2], dim=1)
+    assert torch.equal(jac, expected.flatten(0, 1))
+
+
+def test_padding_rows_are_zero_and_inactive():
+    c = random_contacts(4, 5, (2,), inactive=2)
+    jac, phi, active = c.dual_rows(4)
+    assert torch.count_nonzero(jac[..., 8:, :]) == 0
+    assert torch.count_nonzero(jac[..., :8, :]) == 2 * 8 * 5
+    assert not active[..., 8:].any() and active[..., :8].all()
+    assert torch.equal(phi, c.phi.repeat_interleave(4, dim=-1))
+
+
+def test_empty_contacts():
+    c = Contacts.empty(3, 6, batch=(2, 5), dtype=torch.float64)
+    assert c.slots == 3 and c.nv == 6 and c.batch_shape == (2, 5)
+    assert c.phi.dtype == torch.float64 and c.active.dtype == torch.bool
+    assert torch.equal(c.n_active(), torch.zeros(2, 5, dtype=torch.long))
+    assert torch.all(c.phi == PAD_DISTANCE)
+    jac, phi, active = c.dual_rows(4)
+    assert jac.shape == (2, 5, 12, 6) and torch.count_nonzero(jac) == 0
+    assert not active.any()
+    none = Contacts.empty(0, 6)
+    jac, phi, active = none.dual_rows(8)
+    assert jac.shape == (0, 6) and phi.shape == active.shape == (0,)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_to_dtype_keeps_active_bool(dtype):
+    c = random_contacts(3, 4, (2,), inactive=1).to(dtype)
+    for name in ("phi", "jac_normal", "jac_tangent", "mu", "frame", "position"):
+        assert getattr(c, name).dtype == dtype
+    assert c.active.dtype == torch.bool
+    assert torch.equal(c.n_active(), torch.tensor([2, 2]))
+    moved = Contacts.empty(2, 3).to("cpu", torch.float64)
+    assert moved.frame is None and moved.position is None and moved.phi.dtype == torch.float64
+    assert moved.active.dtype == torch.bool
+
+
+@pytest.mark.parametrize("facets", [4, 8])
+def test_impulses_split_rows_into_normal_and_friction(facets):
+    c = random_contacts(3, 4, (2,))
+    beta = torch.rand(2, 3 * facets, dtype=torch.float64)
+    normal, friction = c.impulses(beta, facets)
+    assert normal.shape == (2, 3) and friction.shape == (2, 3, 2)
+    per_contact = beta.unflatten(-1, (3, facets))
+    torch.testing.assert_close(normal, per_contact.sum(-1))
+    d = facet_directions(facets, torch.float64)
+    expected = c.mu[..., None] * (per_contact[..., None] * d).sum(-2)
+    torch.testing.assert_close(friction, expected)
+    assert bool((friction.norm(dim=-1) <= c.mu * normal * (1 + 1e-12)).all())
+
+
+def test_equal_row_impulses_give_pure_normal_impulse():
+    c = random_contacts(2, 3, mu=0.7)
+    normal, friction = c.impulses(torch.full((8,), 0.25, dtype=torch.float64), 4)
+    torch.testing.assert_close(normal, torch.ones(2, dtype=torch.float64))
+    torch.testing.assert_close(friction, torch.zeros(2, 2, dtype=torch.float64))
+
+
+def _fields(c: Contacts) -> dict:
+    return {name: getattr(c, name) for name in ("phi", "jac_normal", "jac_tangent", "mu", "active")}
+
+
+def test_negative_mu_raises():
+    fields = _fields(random_contacts(3, 4))
+    fields["mu"] = torch.tensor([0.5, -0.1, 0.2], dtype=torch.float64)
+    with pytest.raises(ValueError, match="mu"):
+        Contacts(**fields)
+
+
+@pytest.mark.parametrize("name", ["phi", "jac_normal", "jac_tangent"])
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_non_finite_geometry_raises(name, bad):
+    fields = _fields(random_contacts(3, 4))
+    fields[name] = fields[name].clone()
+    fields[name].view(-1)[1] = bad
+    with pytest.raises(ValueError, match=name):
+        Contacts(**fields)
+
+
+@pytest.mark.parametrize(
+    "name, shape",
+    [
+        ("jac_normal", (4, 4)),
+        ("jac_tangent", (3, 3, 4)),
+        ("jac_tangent", (3, 2, 5)),
+        ("mu", (4,)),
+        ("active", (2,)),
+        ("frame", (3, 3)),
+        ("position", (3, 2)),
+    ],
+)
+def test_mismatched_shapes_raise(name, shape):
+    fields = _fields(random_contacts(3, 4))
+    dtype = torch.bool if name == "active" else torch.float64
+    fields[name] = torch.zeros(shape, dtype=dtype)
+    with pytest.raises(ValueError, match=name):
+        Contacts(**fields)
+
+
+def test_active_must_be_bool():
+    fields = _fields(random_contacts(3, 4))
+    fields["active"] = torch.ones(3)
+    with pytest.raises(TypeError, match="active"):
+        Contacts(**fields)
