@@ -28,6 +28,15 @@ def _inverse_softplus(value: float) -> float:
     return value + math.log(-math.expm1(-value))
 
 
+def _register_log(module: nn.Module, name: str, log_value: float, learnable: bool) -> None:
+    """Store a log-value as a parameter (learned) or a buffer (fixed, still saved)."""
+    tensor = torch.tensor(log_value)
+    if learnable:
+        module.register_parameter(name, nn.Parameter(tensor))
+    else:
+        module.register_buffer(name, tensor)
+
+
 class Parameterization(nn.Module):
     """Base class: maps the step's contacts (and optionally q) to per-row values."""
 
@@ -46,11 +55,7 @@ class Constant(Parameterization):
 
     def __init__(self, value: float = 1.0, learnable: bool = True):
         super().__init__()
-        log_value = torch.tensor(_log_positive("value", value))
-        if learnable:
-            self.log_value = nn.Parameter(log_value)
-        else:
-            self.register_buffer("log_value", log_value)
+        _register_log(self, "log_value", _log_positive("value", value), learnable)
 
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
         return self.log_value.exp()
@@ -144,11 +149,7 @@ class Relative(Parameterization):
 
     def __init__(self, ratio: float = 0.1, learnable: bool = True):
         super().__init__()
-        log_ratio = torch.tensor(_log_positive("ratio", ratio))
-        if learnable:
-            self.log_ratio = nn.Parameter(log_ratio)
-        else:
-            self.register_buffer("log_ratio", log_ratio)
+        _register_log(self, "log_ratio", _log_positive("ratio", ratio), learnable)
 
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
         if stiffness is None:
