@@ -2,5 +2,30 @@
 
 from torchcontact.sim.detect import ContactDetector
 from torchcontact.sim.dynamics import bias_force, joint_layout, mass_matrix
+from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
+from torchcontact.sim.objects import (
+    OBJECT_SIZES,
+    ObjectMesh,
+    add_goal_marker,
+    add_object,
+    load_object,
+    make_object,
+    object_names,
+)
 
-__all__ = ["ContactDetector", "bias_force", "joint_layout", "mass_matrix"]
+__all__ = [
+    "INITIAL_TIPS",
+    "OBJECT_SIZES",
+    "TIP_RADIUS",
+    "ContactDetector",
+    "FingertipsEnv",
+    "ObjectMesh",
+    "add_goal_marker",
+    "add_object",
+    "bias_force",
+    "joint_layout",
+    "load_object",
+    "make_object",
+    "mass_matrix",
+    "object_names",
+]

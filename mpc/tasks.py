@@ -1,0 +1,300 @@
+"""The paper's three-fingertip tasks: pose samplers, per-object settings, errors, success.
+
+Poses are ``(7,)`` arrays: position [m] then a unit quaternion (w, x, y, z), as in MuJoCo.
+Every function here is pure NumPy.
+
+Seeding: trial ``k`` of any (task, object) pair draws from ``np.random.default_rng(k)``, in
+the order documented by :func:`sample`, so a trial is reproducible from its index alone (the
+reference code seeds NumPy's global generator with ``100 + k`` instead; the draws differ, the
+distributions are the same).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+TASKS = ("rotation", "flip", "in-air")
+"""On-ground rotation, on-ground flip, and in-air manipulation."""
+
+TRIALS = 20
+"""Trials per (task, object) pair in the paper; trial k uses seed k."""
+
+PAPER_PAIRS: tuple[tuple[str, str], ...] = (
+    ("rotation", "cube"),
+    ("flip", "cube"),
+    ("in-air", "cube"),
+    ("rotation", "foam_brick"),
+    ("flip", "foam_brick"),
+    ("in-air", "foam_brick"),
+    ("flip", "stick"),
+    ("rotation", "bunny"),
+    ("in-air", "bunny"),
+)
+"""The (task, object) pairs of the paper's fingertip experiments."""
+
+INITIAL_XY_RANGE = 0.025
+"""Initial object x, y ~ U[−0.025, 0.025] [m]."""
+
+TARGET_XY_RANGE = 0.1
+"""Target object x, y ~ U[−0.1, 0.1] [m]."""
+
+IN_AIR_AXIS = np.array([0.0, 1.0, 1.0])
+IN_AIR_AXIS_NOISE = 0.1
+"""In-air target rotation axis ~ (0, 1, 1) + 0.1·N(0, I), normalised; angle ~ U[−π, π]."""
+
+
+@dataclass(frozen=True)
+class ObjectSettings:
+    """Per-object numbers of the fingertip experiments (plant, sampler and model).
+
+    Attributes:
+        rest_height: z [m] of the object origin (its centre of mass) resting upright on the
+            ground, for our meshes (``torchcontact.sim.objects``): the initial z and the
+            rotation-task target z.
+        flip_height: target z [m] of the flip task; None when the paper has no flip task.
+        flip_pitch: whether flip targets tilt in pitch as well as roll (False: roll only).
+        in_air_height: (low, high) range [m] of in-air target z; None without that task.
+        object_friction: the object's sliding friction in the plant.
+        rotational_metric: angular diagonal of the object metric εMₒ/h² in the model.
+        contact_slots: contact slots nc of the model.
+        model_step: the model's time step h [s].
+        tip_height_max: upper bound [m] on tip z in the MPC (lower bound 0); None: unbounded.
+        translational_metric: linear diagonal of εMₒ/h² (50 for every object).
+    """
+
+    rest_height: float
+    flip_height: float | None
+    flip_pitch: bool
+    in_air_height: tuple[float, float] | None
+    object_friction: float
+    rotational_metric: float
+    contact_slots: int
+    model_step: float
+    tip_height_max: float | None
+    translational_metric: float = 50.0
+
+    def supports(self, task: str) -> bool:
+        """Whether ``task`` is defined for this object."""
+        if task == "flip":
+            return self.flip_height is not None
+        if task == "in-air":
+            return self.in_air_height is not None
+        return task == "rotation"
+
+
+OBJECT_SETTINGS: dict[str, ObjectSettings] = {
+    # Rest heights are our meshes' (cube and stick equal the reference's; the reference
+    # starts the foam brick at 0.03 m and lets it drop); flip and in-air heights, slots,
+    # metrics, h, friction and tip bounds are the reference's numbers.
+    "cube": ObjectSettings(
+        rest_height=0.03,
+        flip_height=0.05,
+        flip_pitch=True,
+        in_air_height=(0.05, 0.10),
+        object_friction=0.9,
+        rotational_metric=0.05,
+        contact_slots=8,
+        model_step=0.1,
+        tip_height_max=None,
+    ),
+    "foam_brick": ObjectSettings(
+        rest_height=0.0235,
+        flip_height=0.03,
+        flip_pitch=True,
+        in_air_height=(0.04, 0.09),
+        object_friction=0.9,
+        rotational_metric=0.05,
+        contact_slots=10,
+        model_step=0.05,
+        tip_height_max=0.1,
+    ),
+    "stick": ObjectSettings(
+        rest_height=0.015,
+        flip_height=0.015,
+        flip_pitch=False,
+        in_air_height=None,
+        object_friction=0.5,
+        rotational_metric=0.05,
+        contact_slots=8,
+        model_step=0.1,
+        tip_height_max=0.1,
+    ),
+    # Our bunny is ellipsoid parts, not the reference's scan: its in-air heights keep the
+    # reference's lift above rest (0.009–0.059 m); 12 slots instead of 10 because a tip on a
+    # seam between two parts touches both (11 contacts seen while squeezing it).
+    "bunny": ObjectSettings(
+        rest_height=0.0342,
+        flip_height=None,
+        flip_pitch=False,
+        in_air_height=(0.0432, 0.0932),
+        object_friction=0.9,
+        rotational_metric=0.06,
+        contact_slots=12,
+        model_step=0.1,
+        tip_height_max=None,
+    ),
+}
+
+
+@dataclass(frozen=True)
+class SuccessCriterion:
+    """Success: ``‖p − p*‖ < position_tolerance`` and ``e < quaternion_tolerance`` held for
+    ``hold_steps`` consecutive steps, within ``max_steps`` steps."""
+
+    position_tolerance: float = 0.02
+    quaternion_tolerance: float = 0.015
+    hold_steps: int = 20
+    max_steps: int = 2000
+
+
+FINGERTIPS_SUCCESS = SuccessCriterion()
+"""The fingertip tasks' criterion: 2 cm, e < 0.015 (14.1°), 20 steps, 2000 steps at most."""
+
+
+# --- rotations ---------------------------------------------------------------------------
+
+
+def quat_from_yaw_pitch_roll(yaw: float, pitch: float = 0.0, roll: float = 0.0) -> np.ndarray:
+    """``(4,)`` quaternion of R = R_z(yaw) R_y(pitch) R_x(roll) [rad]."""
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    return np.array(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ]
+    )
+
+
+def quat_from_axis_angle(axis, angle: float) -> np.ndarray:
+    """``(4,)`` quaternion of a rotation by ``angle`` [rad] about ``axis (3,)`` (any length)."""
+    axis = np.asarray(axis, dtype=float)
+    norm = np.linalg.norm(axis)
+    if axis.shape != (3,) or not norm > 0:
+        raise ValueError(f"axis must be a non-zero 3-vector, got {axis!r}")
+    return np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis / norm])
+
+
+# --- errors ------------------------------------------------------------------------------
+
+
+def quaternion_error(quat, target_quat) -> np.ndarray:
+    """``e = 1 − ⟨q, q*⟩²`` (= sin²(θ/2)) for unit quaternions ``(..., 4)``; 0 when aligned."""
+    dot = np.sum(np.asarray(quat, dtype=float) * np.asarray(target_quat, dtype=float), axis=-1)
+    return 1.0 - dot**2
+
+
+def angle_error(quat, target_quat) -> np.ndarray:
+    """Rotation angle θ = arccos(2⟨q, q*⟩² − 1) [deg] between unit quaternions ``(..., 4)``."""
+    cosine = 1.0 - 2.0 * quaternion_error(quat, target_quat)
+    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def position_error(position, target_position) -> np.ndarray:
+    """Euclidean distance [m] between positions ``(..., 3)``."""
+    delta = np.asarray(position, dtype=float) - np.asarray(target_position, dtype=float)
+    return np.linalg.norm(delta, axis=-1)
+
+
+# --- sampling ----------------------------------------------------------------------------
+
+
+def sample(task: str, obj: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Initial and target object poses ``(7,), (7,)`` of trial ``seed``.
+
+    Draws from ``np.random.default_rng(seed)`` in this order: initial x, y ~ U[−0.025,
+    0.025]; initial yaw ~ U[−π, π]; target x, y ~ U[−0.1, 0.1]; then per task
+
+    - ``"rotation"``: yaw ~ U[−π, π]; z = rest height.
+    - ``"flip"``: yaw ~ U[−π, π], pitch ~ U[−π/2, π/2] (objects with ``flip_pitch``), roll ~
+      U[−π/2, π/2]; z = the object's flip height.
+    - ``"in-air"``: z ~ U[in_air_height]; angle ~ U[−π, π]; axis = (0, 1, 1) + 0.1·N(0, I).
+
+    The initial pose rests upright (z = rest height) with only yaw.
+    """
+    if task not in TASKS:
+        raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    if obj not in OBJECT_SETTINGS:
+        raise ValueError(f"obj must be one of {tuple(OBJECT_SETTINGS)}, got {obj!r}")
+    settings = OBJECT_SETTINGS[obj]
+    if not settings.supports(task):
+        raise ValueError(f"task {task!r} is not defined for obj {obj!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    rng = np.random.default_rng(int(seed))
+    initial_xy = rng.uniform(-INITIAL_XY_RANGE, INITIAL_XY_RANGE, 2)
+    initial_quat = quat_from_yaw_pitch_roll(rng.uniform(-np.pi, np.pi))
+    initial = np.concatenate([initial_xy, [settings.rest_height], initial_quat])
+    target_xy = rng.uniform(-TARGET_XY_RANGE, TARGET_XY_RANGE, 2)
+    if task == "rotation":
+        height = settings.rest_height
+        quat = quat_from_yaw_pitch_roll(rng.uniform(-np.pi, np.pi))
+    elif task == "flip":
+        height = settings.flip_height
+        yaw = rng.uniform(-np.pi, np.pi)
+        pitch = rng.uniform(-np.pi / 2, np.pi / 2) if settings.flip_pitch else 0.0
+        quat = quat_from_yaw_pitch_roll(yaw, pitch, rng.uniform(-np.pi / 2, np.pi / 2))
+    else:
+        height = rng.uniform(*settings.in_air_height)
+        angle = rng.uniform(-np.pi, np.pi)
+        axis = IN_AIR_AXIS + IN_AIR_AXIS_NOISE * rng.standard_normal(3)
+        quat = quat_from_axis_angle(axis, angle)
+    target = np.concatenate([target_xy, [height], quat])
+    return initial, target
+
+
+# --- success -----------------------------------------------------------------------------
+
+
+class SuccessTracker:
+    """Counts steps and consecutive in-tolerance steps of one trial.
+
+    Call :meth:`update` after every plant step with the object pose; the trial succeeds once
+    the pose has been within tolerance for ``hold_steps`` consecutive steps, and is over
+    (``done``) on success or after ``max_steps`` steps.
+    """
+
+    def __init__(self, target_pose, criterion: SuccessCriterion = FINGERTIPS_SUCCESS):
+        target = np.asarray(target_pose, dtype=float)
+        if target.shape != (7,) or not np.all(np.isfinite(target)):
+            raise ValueError(f"target_pose must be 7 finite numbers, got {target_pose!r}")
+        self.target = target
+        self.criterion = criterion
+        self.steps = 0
+        self.consecutive = 0
+        self.success_step: int | None = None
+
+    def update(self, object_pose) -> bool:
+        """Record the pose ``(7,)`` (or a full state whose first 7 entries are the object
+        pose) after one step; returns :attr:`done`."""
+        pose = np.asarray(object_pose, dtype=float)
+        if pose.ndim != 1 or pose.shape[0] < 7:
+            raise ValueError(f"object_pose must have at least 7 entries, got {pose.shape}")
+        self.steps += 1
+        if self.within_tolerance(pose[:7]):
+            self.consecutive += 1
+        else:
+            self.consecutive = 0
+        if self.success_step is None and self.consecutive >= self.criterion.hold_steps:
+            self.success_step = self.steps
+        return self.done
+
+    def within_tolerance(self, pose: np.ndarray) -> bool:
+        """Whether ``pose (7,)`` is within the position and quaternion tolerances."""
+        close = position_error(pose[:3], self.target[:3]) < self.criterion.position_tolerance
+        aligned = quaternion_error(pose[3:7], self.target[3:]) < self.criterion.quaternion_tolerance
+        return bool(close and aligned)
+
+    @property
+    def succeeded(self) -> bool:
+        return self.success_step is not None
+
+    @property
+    def done(self) -> bool:
+        return self.succeeded or self.steps >= self.criterion.max_steps

@@ -1,0 +1,144 @@
+"""Fingertip tasks: reproducible samplers inside their ranges, error formulas, success rule."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from torchcontact.mpc import tasks
+from torchcontact.mpc.tasks import (
+    OBJECT_SETTINGS,
+    PAPER_PAIRS,
+    SuccessCriterion,
+    SuccessTracker,
+    angle_error,
+    position_error,
+    quat_from_axis_angle,
+    quat_from_yaw_pitch_roll,
+    quaternion_error,
+    sample,
+)
+
+SEEDS = range(tasks.TRIALS)
+
+
+def _yaw_pitch_roll(quat: np.ndarray) -> tuple[float, float, float]:
+    w, x, y, z = quat
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    pitch = math.asin(np.clip(2 * (w * y - x * z), -1, 1))
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    return yaw, pitch, roll
+
+
+@pytest.mark.parametrize(("task", "obj"), PAPER_PAIRS)
+def test_samples_are_reproducible_and_inside_their_ranges(task, obj):
+    settings = OBJECT_SETTINGS[obj]
+    for seed in SEEDS:
+        initial, target = sample(task, obj, seed)
+        again = sample(task, obj, seed)
+        np.testing.assert_array_equal(initial, again[0])
+        np.testing.assert_array_equal(target, again[1])
+        assert initial.shape == target.shape == (7,)
+        assert np.linalg.norm(initial[3:]) == pytest.approx(1.0)
+        assert np.linalg.norm(target[3:]) == pytest.approx(1.0)
+        assert np.all(np.abs(initial[:2]) <= 0.025) and initial[2] == settings.rest_height
+        _, pitch, roll = _yaw_pitch_roll(initial[3:])
+        assert abs(pitch) < 1e-12 and abs(roll) < 1e-12  # upright, yaw only
+        assert np.all(np.abs(target[:2]) <= 0.1)
+        _, pitch, roll = _yaw_pitch_roll(target[3:])
+        if task == "rotation":
+            assert target[2] == settings.rest_height
+            assert abs(pitch) < 1e-9 and abs(roll) < 1e-9
+        elif task == "flip":
+            assert target[2] == settings.flip_height
+            if not settings.flip_pitch:
+                assert abs(pitch) < 1e-9
+        else:
+            low, high = settings.in_air_height
+            assert low <= target[2] <= high
+    first = [sample(task, obj, seed)[1] for seed in SEEDS]
+    assert len({tuple(t) for t in first}) == len(first)  # seeds give different trials
+
+
+def test_flip_and_in_air_targets_spread_over_their_distributions():
+    flips = np.array([_yaw_pitch_roll(sample("flip", "cube", s)[1][3:]) for s in range(200)])
+    assert np.abs(flips[:, 1]).max() > 1.0 and np.abs(flips[:, 2]).max() > 1.0
+    axes = []
+    for seed in range(200):
+        quat = sample("in-air", "cube", seed)[1][3:]
+        axes.append(np.sign(quat[0]) * quat[1:] / np.linalg.norm(quat[1:]))
+    mean_axis = np.mean(np.abs(axes), axis=0)
+    assert mean_axis[1] > 0.6 and mean_axis[2] > 0.6 and mean_axis[0] < 0.15  # about (0, 1, 1)
+
+
+def test_rest_heights_match_the_meshes():
+    from torchcontact.sim.objects import make_object
+
+    for name, settings in OBJECT_SETTINGS.items():
+        assert make_object(name).resting_height() == pytest.approx(settings.rest_height, abs=5e-4)
+
+
+def test_error_formulas_match_the_fact_sheet():
+    for e, degrees in ((0.04, 23.1), (0.03, 19.9), (0.015, 14.1)):
+        theta = 2 * math.asin(math.sqrt(e))  # e = sin²(θ/2)
+        quat = quat_from_axis_angle([0.3, -1.0, 0.5], theta)
+        identity = np.array([1.0, 0, 0, 0])
+        assert quaternion_error(quat, identity) == pytest.approx(e)
+        assert angle_error(quat, identity) == pytest.approx(degrees, abs=0.05)
+        assert quaternion_error(-quat, identity) == pytest.approx(e)  # q and −q agree
+    assert angle_error(identity, identity) == 0.0
+    assert position_error([0.0, 0.03, 0.04], [0, 0, 0]) == pytest.approx(0.05)
+    batch = np.stack([identity, quat_from_yaw_pitch_roll(np.pi)])
+    np.testing.assert_allclose(angle_error(batch, identity), [0.0, 180.0], atol=1e-6)
+
+
+def test_yaw_pitch_roll_is_the_z_y_x_convention():
+    yaw, pitch, roll = 0.4, -0.3, 1.1
+    quat = quat_from_yaw_pitch_roll(yaw, pitch, roll)
+    np.testing.assert_allclose(_yaw_pitch_roll(quat), (yaw, pitch, roll), atol=1e-12)
+
+
+def test_success_needs_twenty_consecutive_steps_in_tolerance():
+    target = np.array([0.05, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0])
+    tracker = SuccessTracker(target)
+    near = target + [0.015, 0, 0, 0, 0, 0, 0]
+    far = target + [0.025, 0, 0, 0, 0, 0, 0]
+    tilted = np.concatenate([target[:3], quat_from_axis_angle([1, 0, 0], np.radians(15))])
+    for _ in range(19):
+        assert not tracker.update(near)
+    assert not tracker.update(far) and tracker.consecutive == 0
+    assert not tracker.update(tilted)  # 15° > 14.1°
+    for _ in range(19):
+        assert not tracker.update(np.concatenate([near, np.zeros(9)]))  # full state accepted
+    assert tracker.update(near) and tracker.succeeded and tracker.success_step == 41
+
+
+def test_tracker_gives_up_after_max_steps():
+    tracker = SuccessTracker(np.array([0, 0, 0.03, 1, 0, 0, 0.0]), SuccessCriterion(max_steps=3))
+    far = np.array([1.0, 0, 0.03, 1, 0, 0, 0])
+    assert [tracker.update(far) for _ in range(3)] == [False, False, True]
+    assert tracker.done and not tracker.succeeded
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("spin", "cube", 0), "task"),
+        (("rotation", "spoon", 0), "obj"),
+        (("in-air", "stick", 0), "stick"),
+        (("flip", "bunny", 0), "bunny"),
+        (("rotation", "cube", -1), "seed"),
+        (("rotation", "cube", 1.5), "seed"),
+    ],
+)
+def test_bad_input_names_the_argument(args, message):
+    with pytest.raises(ValueError, match=message):
+        sample(*args)
+
+
+def test_every_paper_pair_is_supported():
+    assert len(PAPER_PAIRS) == 9
+    for task, obj in PAPER_PAIRS:
+        assert OBJECT_SETTINGS[obj].supports(task)

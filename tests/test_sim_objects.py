@@ -1,0 +1,145 @@
+"""Objects: sizes, mass properties and MuJoCo bodies of every built-in shape; user meshes."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import trimesh
+
+from torchcontact.sim.objects import (
+    OBJECT_SIZES,
+    add_goal_marker,
+    add_object,
+    load_object,
+    make_object,
+    object_names,
+)
+
+
+def _compiled(obj):
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05])
+    add_object(spec, obj)
+    add_goal_marker(spec, obj)
+    return spec.compile()
+
+
+def _body_frame_vertices(model: mujoco.MjModel, body: int) -> np.ndarray:
+    """All mesh vertices of ``body``'s geoms in the body frame, as MuJoCo compiled them."""
+    points = []
+    for geom in np.flatnonzero(model.geom_bodyid == body):
+        mesh = model.geom_dataid[geom]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        rotation = np.zeros(9)
+        mujoco.mju_quat2Mat(rotation, model.geom_quat[geom])
+        local = model.mesh_vert[start : start + count]
+        points.append(local @ rotation.reshape(3, 3).T + model.geom_pos[geom])
+    return np.concatenate(points)
+
+
+@pytest.mark.parametrize("name", object_names())
+def test_every_object_builds_at_its_listed_size_and_mass(name):
+    obj = make_object(name)
+    model = _compiled(obj)
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    vertices = _body_frame_vertices(model, body)
+    np.testing.assert_allclose(np.ptp(vertices, axis=0), OBJECT_SIZES[name], atol=1e-3)
+    np.testing.assert_allclose(obj.size, OBJECT_SIZES[name], atol=1e-9)
+    assert model.body_mass[body] == pytest.approx(0.01)
+    np.testing.assert_allclose(model.body_ipos[body], 0.0, atol=1e-12)  # origin = CoM
+    principal = np.sort(model.body_inertia[body])
+    assert principal[0] > 0 and principal[0] + principal[1] >= principal[2]
+    goal = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "goal")
+    goal_geoms = model.geom_bodyid == goal
+    assert model.body_mocapid[goal] == 0
+    assert goal_geoms.sum() == len(obj.parts)
+    assert not model.geom_contype[goal_geoms].any() and not model.geom_conaffinity[goal_geoms].any()
+
+
+def test_cube_mass_properties_are_exact():
+    obj = make_object("cube", mass=0.02)
+    np.testing.assert_allclose(obj.inertia, 0.02 * 0.06**2 / 6 * np.eye(3), rtol=1e-6, atol=1e-14)
+    assert obj.mass == 0.02
+
+
+def test_grid_mass_properties_match_exact_integrals_on_a_convex_mesh(tmp_path):
+    """The grid integration against trimesh's exact volume integrals, on a tilted ellipsoid."""
+    blob = trimesh.creation.icosphere(subdivisions=3)
+    blob.apply_scale([1.0, 0.6, 0.4])
+    blob.apply_transform(trimesh.transformations.rotation_matrix(0.5, [1, 1, 0]))
+    path = tmp_path / "blob.stl"
+    blob.export(path)
+    obj = load_object(path, 0.08, mass=0.01, decomposition="hull")
+    exact = obj.parts[0].copy()
+    exact.density = 0.01 / exact.volume
+    np.testing.assert_allclose(exact.center_mass, 0.0, atol=2e-4)  # origin at the CoM
+    np.testing.assert_allclose(obj.inertia, exact.moment_inertia, atol=0.01 * obj.inertia.max())
+
+
+def test_resting_height_of_a_turned_cube():
+    cube = make_object("cube")
+    assert cube.resting_height() == pytest.approx(0.03)
+    yaw = [math.cos(0.3), 0, 0, math.sin(0.3)]
+    assert cube.resting_height(yaw) == pytest.approx(0.03)
+    on_edge = [math.cos(math.pi / 8), math.sin(math.pi / 8), 0, 0]
+    assert cube.resting_height(on_edge) == pytest.approx(0.03 * math.sqrt(2))
+
+
+def test_hollow_objects_keep_their_holes_open():
+    """A sphere fits through the torus' hole and inside the cup: parts, not one hull."""
+    torus = make_object("torus")
+    cup = make_object("cup")
+    for obj, point in ((torus, [0, 0, 0]), (cup, [0, 0, 0.01])):
+        inside = [part.convex_hull.contains([point])[0] for part in obj.parts]
+        assert not any(inside)
+        assert len(obj.parts) > 1
+
+
+def test_user_mesh_loads_scaled_to_largest_extent_and_to_a_box(tmp_path):
+    path = tmp_path / "bar.stl"
+    trimesh.creation.box(extents=[2.0, 1.0, 0.5]).export(path)
+    uniform = load_object(path, 0.1, decomposition="hull")
+    np.testing.assert_allclose(uniform.size, [0.1, 0.05, 0.025], atol=1e-9)
+    assert uniform.name == "bar" and len(uniform.parts) == 1
+    boxed = load_object(path, (0.03, 0.04, 0.05), mass=0.05, decomposition="hull")
+    np.testing.assert_allclose(boxed.size, [0.03, 0.04, 0.05], atol=1e-9)
+    model = _compiled(boxed)
+    assert model.body_mass[1] == pytest.approx(0.05)
+
+
+def test_user_mesh_with_a_hole_is_decomposed_by_coacd(tmp_path):
+    pytest.importorskip("coacd")
+    path = tmp_path / "ring.obj"
+    trimesh.creation.annulus(r_min=0.6, r_max=1.0, height=0.5).export(path)
+    ring = load_object(path, 0.08, decomposition="coacd")
+    np.testing.assert_allclose(ring.size.max(), 0.08, atol=1e-3)
+    assert len(ring.parts) > 1
+    assert not any(part.convex_hull.contains([[0, 0, 0]])[0] for part in ring.parts)
+    _compiled(ring)
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: make_object("spoon"), "name"),
+        (lambda: make_object("cube", mass=0), "mass"),
+        (lambda: make_object("cube", size=(0.1, -0.1, 0.1)), "size"),
+        (lambda: load_object("/no/such/file.stl", 0.1), "path"),
+        (lambda: make_object("cube").resting_height([0, 0, 0, 0]), "quat"),
+    ],
+)
+def test_bad_input_names_the_argument(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+def test_bad_decomposition_and_friction_name_the_argument(tmp_path):
+    path = tmp_path / "box.stl"
+    trimesh.creation.box().export(path)
+    with pytest.raises(ValueError, match="decomposition"):
+        load_object(path, 0.1, decomposition="vhacd")
+    with pytest.raises(ValueError, match="friction"):
+        add_object(mujoco.MjSpec(), make_object("cube"), friction=-1.0)

@@ -1,0 +1,309 @@
+"""The three-fingertip plant: an object on the ground pushed by three position-controlled spheres.
+
+The simulated side of the paper's fingertip experiments. Each fingertip is a sphere (radius
+1 cm) on three slide joints; a PD law with gravity compensation drives it towards ``x + u``
+over ``frame_skip`` MuJoCo substeps, so one :meth:`FingertipsEnv.step` is one MPC step
+(10 × 2 ms = 20 ms by default).
+
+State layout ``q (16,)``: object position (3) [m], object quaternion (w, x, y, z) (4), then
+the tips' centres x, y, z × 3 [m]; velocities ``v (15,)``: object linear (world) and angular
+(body) velocity, then tip velocities.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from torchcontact.contacts import Contacts
+from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
+from torchcontact.sim.objects import (
+    OBJECT_SIZES,
+    ObjectMesh,
+    add_goal_marker,
+    add_object,
+    load_object,
+    make_object,
+)
+
+TIP_RADIUS = 0.01
+"""Fingertip sphere radius [m]."""
+
+INITIAL_TIPS = np.array([0.2, 0.0, TIP_RADIUS, 0.0, 0.2, TIP_RADIUS, -0.2, 0.0, TIP_RADIUS])
+"""Default tip centres ``(9,)`` [m]: the paper's (0.2, 0), (0, 0.2), (−0.2, 0), resting on the
+ground (the reference code starts them at z = 0, half sunk into the floor, which the contact
+solver then pushes out)."""
+
+OBJECT_BODY = "object"
+GOAL_BODY = "goal"
+TIP_BODIES = ("tip0", "tip1", "tip2")
+
+
+class FingertipsEnv:
+    """MuJoCo plant of the three-fingertip tasks, built in code with ``MjSpec``.
+
+    Args:
+        obj: a built-in object name (see :func:`~torchcontact.sim.objects.object_names`), a
+            mesh file path, or an :class:`~torchcontact.sim.objects.ObjectMesh`.
+        object_size: for a mesh path, the largest extent [m] it is scaled to, or its
+            bounding box (x, y, z) [m].
+        mass: object mass [kg] (names and paths only).
+        object_friction, tip_friction, ground_friction: sliding friction coefficients; MuJoCo
+            combines a pair by the maximum.
+        condim: contact dimensionality of every geom (6: sliding, torsional and rolling).
+        contact_slots: slots nc of :meth:`contacts` (the paper: 8 for cube and stick, 10 for
+            foam brick and bunny; 12 for our multi-part bunny; see
+            ``torchcontact.mpc.tasks.OBJECT_SETTINGS``).
+        contact_mu: μ written into :meth:`contacts` (the model's 0.5), None for MuJoCo's.
+        overflow: what :meth:`contacts` does when more object contacts exist than slots:
+            ``"error"`` raises (default: nothing is dropped silently); ``"deepest"`` keeps the
+            most penetrating ones.
+        frame_skip: MuJoCo substeps per :meth:`step`.
+        timestep: MuJoCo substep [s].
+        kp, kd: PD gains of the tip servo [N/m], [N·s/m].
+    """
+
+    nq, nv, nu = 16, 15, 9
+
+    def __init__(
+        self,
+        obj: str | Path | ObjectMesh = "cube",
+        *,
+        object_size: float | tuple[float, float, float] = 0.1,
+        mass: float = 0.01,
+        object_friction: float = 0.9,
+        tip_friction: float = 0.5,
+        ground_friction: float = 0.5,
+        condim: int = 6,
+        contact_slots: int = 10,
+        contact_mu: float | None = 0.5,
+        overflow: str = "error",
+        frame_skip: int = 10,
+        timestep: float = 0.002,
+        kp: float = 100.0,
+        kd: float = 2.0,
+    ):
+        if overflow not in OVERFLOW_POLICIES:
+            raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
+        if not isinstance(frame_skip, int) or frame_skip < 1:
+            raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
+        for name, value in (("timestep", timestep), ("kp", kp), ("kd", kd)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        for name, value in (("tip_friction", tip_friction), ("ground_friction", ground_friction)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
+        self.object = _resolve_object(obj, object_size, mass)
+        self.frame_skip, self.kp, self.kd = frame_skip, float(kp), float(kd)
+        spec = _scene_spec(self.object, object_friction, tip_friction, ground_friction, condim)
+        spec.option.timestep = timestep
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.detector = ContactDetector(
+            self.model, [OBJECT_BODY], contact_slots, mu=contact_mu, overflow=overflow
+        )
+        self._tip_dofs = np.arange(6, 15)
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        resting = np.array([0, 0, self.object.resting_height(), 1, 0, 0, 0], dtype=float)
+        self.reset(resting, resting)
+
+    # --- state ---------------------------------------------------------------------------
+
+    def reset(self, object_pose, target_pose=None, tips=None) -> np.ndarray:
+        """Place the object and tips at rest and move the goal marker; returns :meth:`state`.
+
+        Args:
+            object_pose: ``(7,)`` position [m] and quaternion (w, x, y, z), normalised here.
+            target_pose: ``(7,)`` pose shown by the goal marker; None keeps the current one.
+            tips: ``(9,)`` tip centres [m]; None uses :data:`INITIAL_TIPS`.
+        """
+        pose = _pose("object_pose", object_pose)
+        tips = INITIAL_TIPS if tips is None else _vector("tips", tips, 9)
+        target = self.target if target_pose is None else _pose("target_pose", target_pose)
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = np.concatenate([pose, tips])
+        self.set_target(target)
+        mujoco.mj_forward(self.model, self.data)
+        return self.state()
+
+    def set_target(self, target_pose) -> None:
+        """Move the goal marker to ``target_pose (7,)`` (position [m], quaternion)."""
+        pose = _pose("target_pose", target_pose)
+        self.data.mocap_pos[0] = pose[:3]
+        self.data.mocap_quat[0] = pose[3:]
+
+    @property
+    def target(self) -> np.ndarray:
+        """``(7,)`` pose of the goal marker."""
+        return np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
+
+    def state(self) -> np.ndarray:
+        """``(16,)`` copy of q: object position, quaternion (w, x, y, z), tip centres [m]."""
+        return self.data.qpos.copy()
+
+    def velocity(self) -> np.ndarray:
+        """``(15,)`` copy of v [m/s, rad/s]."""
+        return self.data.qvel.copy()
+
+    # --- dynamics ------------------------------------------------------------------------
+
+    def step(self, u) -> np.ndarray:
+        """Command the tips to move by ``u (9,)`` [m]; simulate ``frame_skip`` substeps.
+
+        The set point ``x_des = x + u`` is fixed for the whole step; every substep applies
+        ``τ = kp(x_des − x) − kd ẋ + g_tips`` with ``g_tips`` the tips' gravity load (their
+        bias force: slide joints have no velocity terms). With the default gains a free tip
+        under a constant command settles at ≈ 2u/3 per step (over-damped servo). Returns the
+        new :meth:`state`.
+        """
+        command = _vector("u", u, self.nu)
+        desired = self.data.qpos[7:] + command
+        for _ in range(self.frame_skip):
+            error = desired - self.data.qpos[7:]
+            velocity = self.data.qvel[self._tip_dofs]
+            gravity = self.data.qfrc_bias[self._tip_dofs]
+            self.data.ctrl[:] = self.kp * error - self.kd * velocity + gravity
+            mujoco.mj_step(self.model, self.data)
+        return self.state()
+
+    def contacts(self, dtype: torch.dtype | None = None) -> Contacts:
+        """Contacts of the object (with tips and ground) at the current state.
+
+        MuJoCo's contacts at touch (no margin), ``contact_slots`` slots, μ = ``contact_mu``;
+        φ is MuJoCo's distance (≤ 0 when touching; the reference model uses φ/2, a model
+        choice left to the caller). More contacts than slots follow ``overflow``.
+        """
+        contacts = self.detector(self.data.qpos)
+        return contacts if dtype is None else contacts.to(dtype)
+
+    # --- rendering -----------------------------------------------------------------------
+
+    def render(self, width: int = 480, height: int = 360, camera: str | int = "overview"):
+        """``(height, width, 3)`` uint8 offscreen image from a named or numbered camera.
+
+        Needs an OpenGL backend (``MUJOCO_GL=egl`` or ``osmesa`` on headless machines).
+        """
+        for name, value in (("width", width), ("height", height)):
+            if not isinstance(value, int) or not 0 < value <= 1920:
+                raise ValueError(f"{name} must be an integer in [1, 1920], got {value!r}")
+        camera_id = camera
+        if isinstance(camera, str):
+            camera_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+            if camera_id < 0:
+                raise ValueError(f"camera must name a camera of the scene, got {camera!r}")
+        elif not (isinstance(camera, int) and -1 <= camera < self.model.ncam):
+            raise ValueError(f"camera must be a name or an id in [-1, {self.model.ncam})")
+        renderer = self._renderers.get((width, height))
+        if renderer is None:
+            renderer = mujoco.Renderer(self.model, height, width)
+            self._renderers[(width, height)] = renderer
+        renderer.update_scene(self.data, camera_id)
+        return renderer.render()
+
+    def close(self) -> None:
+        """Free the renderers' OpenGL contexts."""
+        for renderer in self._renderers.values():
+            renderer.close()
+        self._renderers.clear()
+
+
+def _resolve_object(obj, object_size, mass: float) -> ObjectMesh:
+    if isinstance(obj, ObjectMesh):
+        return obj
+    if isinstance(obj, str) and obj in OBJECT_SIZES:
+        return make_object(obj, mass=mass)
+    if isinstance(obj, (str, Path)) and Path(obj).suffix:
+        return load_object(obj, object_size, mass=mass)
+    raise ValueError(
+        f"obj must be an object name among {tuple(OBJECT_SIZES)}, a mesh path or an "
+        f"ObjectMesh, got {obj!r}"
+    )
+
+
+def _scene_spec(
+    obj: ObjectMesh, object_friction: float, tip_friction: float, ground_friction: float, condim
+) -> mujoco.MjSpec:
+    """Ground, object (first, so its free joint leads q), goal marker, tips, motors, camera."""
+    spec = mujoco.MjSpec()
+    spec.modelname = f"fingertips_{obj.name}"
+    spec.visual.global_.offwidth = 1920
+    spec.visual.global_.offheight = 1920
+    world = spec.worldbody
+    world.add_light(
+        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+        pos=[0.0, 0.3, 1.0],
+        dir=[0.0, -0.3, -1.0],
+        diffuse=[0.8, 0.8, 0.8],
+        ambient=[0.3, 0.3, 0.3],
+    )
+    world.add_camera(
+        name="overview",
+        pos=[0.0, -0.3, 0.2],
+        mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY,
+        targetbody="world",
+    )
+    spec.add_texture(
+        name="checker",
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        rgb1=[0.55, 0.6, 0.65],
+        rgb2=[0.45, 0.5, 0.55],
+        width=256,
+        height=256,
+    )
+    floor = spec.add_material(name="floor", texrepeat=[20, 20], texuniform=True)
+    floor.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "checker"
+    world.add_geom(
+        name="ground",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[0.0, 0.0, 0.05],
+        friction=[ground_friction, 0.005, 0.0001],
+        condim=condim,
+        material="floor",
+    )
+    add_object(spec, obj, OBJECT_BODY, friction=object_friction, condim=condim)
+    add_goal_marker(spec, obj, GOAL_BODY)
+    colours = ([0.8, 0.15, 0.15, 1], [0.15, 0.7, 0.15, 1], [0.15, 0.3, 0.85, 1])
+    for body_name, rgba in zip(TIP_BODIES, colours, strict=True):
+        tip = world.add_body(name=body_name)
+        for axis_name, axis in zip("xyz", np.eye(3), strict=True):
+            joint_name = f"{body_name}_{axis_name}"
+            tip.add_joint(name=joint_name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis)
+            spec.add_actuator(name=joint_name, target=joint_name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        tip.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[TIP_RADIUS, 0.0, 0.0],
+            friction=[tip_friction, 0.005, 0.0001],
+            condim=condim,
+            rgba=rgba,
+        )
+    return spec
+
+
+def _vector(name: str, value, size: int) -> np.ndarray:
+    """``value`` as a finite float64 ``(size,)`` array (NumPy, list or tensor)."""
+    if isinstance(value, torch.Tensor):
+        value = value.detach().cpu().numpy()
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from None
+    if array.shape != (size,):
+        raise ValueError(f"{name} must have shape ({size},), got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {array}")
+    return array
+
+
+def _pose(name: str, value) -> np.ndarray:
+    """A ``(7,)`` pose with its quaternion normalised."""
+    pose = _vector(name, value, 7)
+    norm = np.linalg.norm(pose[3:])
+    if norm < 1e-9:
+        raise ValueError(f"{name} must have a non-zero quaternion in its last 4 entries")
+    pose[3:] /= norm
+    return pose
