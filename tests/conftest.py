@@ -1,17 +1,8 @@
 """Test settings: one thread (2-core machines run 5–20× slower oversubscribed), seeded RNG."""
 
-import ctypes.util
 import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-# MuJoCo picks its GL backend at import and fails to import if the backend's library is
-# missing, so offscreen rendering is asked for only where a backend exists.
-if "MUJOCO_GL" not in os.environ:
-    for backend, library in (("egl", "EGL"), ("osmesa", "OSMesa")):
-        if ctypes.util.find_library(library):
-            os.environ["MUJOCO_GL"] = backend
-            break
-
 import pytest  # noqa: E402
 import torch  # noqa: E402
 

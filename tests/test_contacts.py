@@ -88,7 +88,7 @@ def test_four_facet_rows_are_normal_plus_minus_mu_tangents():
     mu = c.mu[:, None]
     n, t1, t2 = c.jac_normal, c.jac_tangent[:, 0], c.jac_tangent[:, 1]
     expected = torch.stack([n + mu * t1, n + mu * t2, n - mu * t1, n - mu * t2], dim=1)
-    assert torch.equal(jac, expected.flatten(0, 1))
+    torch.testing.assert_close(jac, expected.flatten(0, 1), rtol=1e-15, atol=1e-15)
 
 
 def test_padding_rows_are_zero_and_inactive():

@@ -12,6 +12,15 @@ import torch
 
 from torchcontact import AnitescuQP, ComplementarityFree, Contacts, cf_velocity, qp_solve
 from torchcontact.functional import cf_multipliers
+from torchcontact.qp import OSQP_SETTINGS
+
+
+@pytest.fixture(autouse=True)
+def _tight_osqp(monkeypatch):
+    """These tests check KKT conditions to 1e-8, so OSQP runs 100× tighter than its default."""
+    monkeypatch.setitem(OSQP_SETTINGS, "eps_abs", 1e-10)
+    monkeypatch.setitem(OSQP_SETTINGS, "eps_rel", 1e-10)
+
 
 F64 = torch.float64
 

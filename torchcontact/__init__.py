@@ -4,6 +4,11 @@ The contact layer is pure torch; ``torchcontact.sim`` bridges MuJoCo, ``torchcon
 plans through the model and ``torchcontact.learn`` fits its stiffness from data.
 """
 
+from torchcontact.rendering import select_gl_backend
+
+# pytorch-kinematics imports mujoco, which reads MUJOCO_GL once at import: choose it first.
+select_gl_backend()
+
 from torchcontact.contacts import Contacts, facet_directions
 from torchcontact.functional import cf_multipliers, cf_velocity, softplus
 from torchcontact.integrate import JointLayout, integrate

@@ -8,6 +8,10 @@ import os
 import sys
 
 JOBS = {
+    "run": (
+        "torchcontact.mpc.evaluate",
+        "closed-loop MPC trials in MuJoCo (e.g. run fingertips --task in-air --object cube)",
+    ),
     "box-pushing": (
         "torchcontact.experiments.box_pushing",
         "bar pushing N cubes: complementarity-free vs QP, time and prediction gap",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields, replace
 
@@ -16,15 +17,22 @@ PAD_DISTANCE = 1.0
 def facet_directions(facets: int, dtype=None, device=None) -> torch.Tensor:
     """``(facets, 2)`` unit tangent directions (cos, sin of 2πk/n_d) of the polyhedral cone.
 
-    With ``facets=4`` they are t₁, t₂, −t₁, −t₂.
+    With ``facets=4`` they are t₁, t₂, −t₁, −t₂. The tensor is cached and shared: read only.
     """
     if not isinstance(facets, int) or facets < 3:
         raise ValueError(f"facets must be an integer >= 3, got {facets!r}")
+    return _facet_directions(
+        facets, dtype or torch.get_default_dtype(), torch.device(device or "cpu")
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _facet_directions(facets: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     angles = torch.arange(facets, dtype=torch.float64) * (2 * math.pi / facets)
     directions = torch.stack([torch.cos(angles), torch.sin(angles)], dim=-1)
     # Snap round-off (cos(π/2) = 6e-17) so the 4-facet rows are exactly ±t₁, ±t₂.
     directions = torch.where(directions.abs() < 1e-12, torch.zeros_like(directions), directions)
-    return directions.to(dtype=dtype or torch.get_default_dtype(), device=device)
+    return directions.to(dtype=dtype, device=device)
 
 
 @dataclass(frozen=True)
@@ -141,10 +149,11 @@ class Contacts:
             active: ``(..., nc·n_d)`` bool mask of rows of active contacts.
         """
         directions = facet_directions(facets, self.phi.dtype, self.phi.device)
-        # (..., nc, n_d, nv): tangent combination per facet, then the normal plus μ times it.
-        tangent = torch.einsum("fk,...ckv->...cfv", directions, self.jac_tangent)
-        rows = self.jac_normal.unsqueeze(-2) + self.mu[..., None, None] * tangent
-        rows = rows * self.active[..., None, None].to(rows.dtype)
+        # Padding slots get zero rows: mask Jⁿ and μ (smaller than masking the rows).
+        mask = self.active.to(self.phi.dtype)
+        normal = (self.jac_normal * mask.unsqueeze(-1)).unsqueeze(-2)
+        tangent = directions @ self.jac_tangent  # (..., nc, n_d, nv): one direction per facet
+        rows = torch.addcmul(normal, (self.mu * mask)[..., None, None], tangent)
         jac = rows.flatten(-3, -2)
         phi = self.phi.repeat_interleave(facets, dim=-1)
         active = self.active.repeat_interleave(facets, dim=-1)

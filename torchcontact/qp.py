@@ -19,10 +19,10 @@ from torchcontact.functional import Scalar, _check_step_inputs, is_dense_metric
 
 OSQP_SETTINGS = {
     "verbose": False,
-    "eps_abs": 1e-10,
-    "eps_rel": 1e-10,
+    "eps_abs": 1e-8,
+    "eps_rel": 1e-8,
     "max_iter": 200_000,
-    "polishing": False,  # tolerances are already tight; polishing prints to stdout when idle
+    "polishing": False,  # the tolerances are tight already; polishing also prints to stdout
 }
 
 

@@ -1,0 +1,161 @@
+"""Receding-horizon contact-implicit MPC through the complementarity-free model (Algorithm 1).
+
+At each real state: detect contacts once and freeze J̃ and φ̃ over the horizon; roll the model
+out for T steps; minimize Σₜ c(qₜ, uₜ) + V(q_T) over u₀…u_{T−1} in their box with projected
+L-BFGS (gradients by autograd); apply u₀; warm-start the next solve from the shifted plan.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from torchcontact.contacts import Contacts
+from torchcontact.functional import cf_velocity
+from torchcontact.integrate import JointLayout, integrate
+from torchcontact.model import ComplementarityFree
+from torchcontact.mpc.costs import ManipulationCost
+from torchcontact.mpc.optim import lbfgs_box
+from torchcontact.systems import QuasiDynamic
+from torchcontact.validation import check_shape, validate_args
+
+Fingertips = Callable[[torch.Tensor], torch.Tensor]
+"""Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One MPC solve: the control to apply and how the solve went."""
+
+    control: torch.Tensor  # (n_u,) u₀
+    controls: torch.Tensor  # (T, n_u) the whole plan
+    cost: float
+    iterations: int
+    evaluations: int
+    solve_ms: float
+
+
+class ContactImplicitMPC:
+    """MPC over a quasi-dynamic system whose contacts are frozen over the horizon.
+
+    Args:
+        system: the quasi-dynamic system (Q, b(u)).
+        model: the complementarity-free contact model (its K, D, γ, facets are used).
+        layout: the joint layout of q (object free joint first, then the robot).
+        fingertips: forward kinematics of the fingertips, see :data:`Fingertips`.
+        cost: the cost weights.
+        u_lower, u_upper: ``(n_u,)`` or floats, the control box.
+        horizon: T steps; h: the model's time step [s].
+        max_iter, memory: L-BFGS iterations per solve and its memory.
+        compile: compile the objective with ``torch.compile`` (fast steps, slower first call).
+        dtype: of the solve.
+    """
+
+    def __init__(
+        self,
+        system: QuasiDynamic,
+        model: ComplementarityFree,
+        layout: JointLayout,
+        fingertips: Fingertips,
+        cost: ManipulationCost,
+        u_lower,
+        u_upper,
+        horizon: int = 4,
+        h: float = 0.1,
+        max_iter: int = 30,
+        memory: int = 8,
+        compile: bool = False,
+        dtype: torch.dtype = torch.float64,
+    ):
+        if not isinstance(horizon, int) or horizon < 1:
+            raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
+        if not h > 0:
+            raise ValueError(f"h must be positive, got {h!r}")
+        self.system = system.to(dtype)
+        self.model = model.to(dtype)
+        self.layout, self.fingertips, self.cost = layout, fingertips, cost
+        self.horizon, self.h, self.dtype = horizon, float(h), dtype
+        self.max_iter, self.memory = max_iter, memory
+        n_u = system.n_robot
+        self.lower = torch.as_tensor(u_lower, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
+        self.upper = torch.as_tensor(u_upper, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
+        if bool((self.lower > self.upper).any()):
+            raise ValueError("u_lower must not exceed u_upper")
+        self._objective = (
+            torch.compile(self.objective, dynamic=False) if compile else self.objective
+        )
+        self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
+
+    def reset(self) -> None:
+        """Forget the warm start (call between episodes)."""
+        self._warm.zero_()
+
+    def rollout(self, q0, controls, jac, phi, stiffness, damping) -> torch.Tensor:
+        """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
+
+        J̃ ``(m, nv)``, φ̃ ``(m,)``, K and D ``(m,)`` stay frozen over the horizon, as does Q: so
+        each step's velocity depends on its own control only and all T are computed at once.
+        """
+        Q, b = self.system(controls)
+        v = cf_velocity(Q, b, jac, phi, self.h, stiffness, damping, self.model.gamma)
+        states = [q0.expand(*controls.shape[:-2], -1)]
+        for t in range(self.horizon):
+            states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
+        return torch.stack(states, dim=-2)
+
+    def objective(self, controls, q0, jac, phi, stiffness, damping, target_p, target_quat):
+        """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`)."""
+        states = self.rollout(q0, controls, jac, phi, stiffness, damping)
+        return self.cost(
+            states[..., 0:3],
+            states[..., 3:7],
+            self.fingertips(states),
+            controls,
+            target_p,
+            target_quat,
+        )
+
+    def plan(
+        self, q: torch.Tensor, contacts: Contacts, target_p: torch.Tensor, target_quat: torch.Tensor
+    ) -> Plan:
+        """Solve the MPC problem at state ``q (nq,)`` with the contacts detected there."""
+        check_shape("q", q, f"({self.layout.nq},)", q.shape == (self.layout.nq,))
+        start = time.perf_counter()
+        q, contacts = q.to(self.dtype), contacts.to(self.dtype)
+        target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
+        with torch.no_grad():
+            jac, phi, _ = contacts.dual_rows(self.model.facets)
+            K = self.model.stiffness(contacts, self.model.facets, q).expand(phi.shape)
+            D = None
+            if self.model.damping is not None:
+                D = self.model.damping(contacts, self.model.facets, q, K).expand(phi.shape)
+        shape = (self.horizon, self.system.n_robot)
+
+        def value_and_grad(x: torch.Tensor):
+            controls = x.reshape(x.shape[0], *shape).detach().requires_grad_(True)
+            with torch.enable_grad(), validate_args(False):
+                f = self._objective(controls, q, jac, phi, K, D, target_p, target_quat)
+                (grad,) = torch.autograd.grad(f.sum(), controls)
+            return f.detach(), grad.reshape(x.shape)
+
+        result = lbfgs_box(
+            value_and_grad,
+            self._warm.clone(),
+            self.lower,
+            self.upper,
+            memory=self.memory,
+            max_iter=self.max_iter,
+        )
+        controls = result.x.reshape(shape)
+        self._warm = torch.cat([controls[1:], controls[-1:]]).reshape(1, -1)
+        return Plan(
+            control=controls[0].clone(),
+            controls=controls,
+            cost=float(result.f[0]),
+            iterations=int(result.n_iter),
+            evaluations=int(result.n_evals),
+            solve_ms=1e3 * (time.perf_counter() - start),
+        )

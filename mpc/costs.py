@@ -1,0 +1,80 @@
+"""The paper's MPC cost terms, batched over any leading dimensions.
+
+Poses are an object position ``p (..., 3)`` [m] and quaternion ``quat (..., 4)`` (w, x, y, z);
+fingertips are world positions ``tips (..., n_tips, 3)`` [m], from forward kinematics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from pytorch_kinematics.transforms import quaternion_to_matrix
+
+
+def position_cost(p: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``‖p − p*‖²`` [m²], shape ``(...)``."""
+    return (p - target).square().sum(-1)
+
+
+def quaternion_cost(quat: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``1 − ⟨q, q*⟩²`` = sin²(θ/2) of the rotation between them, in [0, 1], shape ``(...)``."""
+    return 1.0 - (quat * target).sum(-1).square()
+
+
+def contact_cost(p: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
+    """``Σᵢ ‖p − tipᵢ‖²`` [m²]: pulls every fingertip toward the object."""
+    return (tips - p.unsqueeze(-2)).square().sum((-1, -2))
+
+
+def grasp_cost(p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
+    """``‖Σᵢ Rᵀ(tipᵢ − p)/‖tipᵢ − p‖‖²``: zero when the tip directions balance (force closure)."""
+    offsets = tips - p.unsqueeze(-2)
+    directions = offsets / offsets.square().sum(-1, keepdim=True).clamp_min(1e-12).sqrt()
+    in_object_frame = directions @ quaternion_to_matrix(quat)  # rows dᵢᵀR = (Rᵀdᵢ)ᵀ
+    return in_object_frame.sum(-2).square().sum(-1)
+
+
+@dataclass(frozen=True)
+class ManipulationCost:
+    """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights (TASKS.md table).
+
+    c = contact·Σ‖p − tip‖² + grasp·‖Σ Rᵀd̂ᵢ‖² + control·‖u‖²;
+    V = final·(position·‖p − p*‖² + orientation·(1 − ⟨q, q*⟩²)).
+    """
+
+    contact: float = 1.0
+    grasp: float = 0.05
+    control: float = 50.0
+    position: float = 500.0
+    orientation: float = 5.0
+    final: float = 10.0
+
+    def __call__(
+        self,
+        positions: torch.Tensor,
+        quats: torch.Tensor,
+        tips: torch.Tensor,
+        controls: torch.Tensor,
+        target_position: torch.Tensor,
+        target_quat: torch.Tensor,
+    ) -> torch.Tensor:
+        """Total cost ``(...)`` of a rollout.
+
+        Args:
+            positions: ``(..., T+1, 3)`` object positions p₀…p_T.
+            quats: ``(..., T+1, 4)`` object quaternions.
+            tips: ``(..., T+1, n_tips, 3)`` fingertip positions.
+            controls: ``(..., T, n_u)`` controls u₀…u_{T−1}.
+            target_position: ``(..., 3)``; target_quat: ``(..., 4)``.
+        """
+        p, quat, tip = positions[..., :-1, :], quats[..., :-1, :], tips[..., :-1, :, :]
+        path = (
+            self.contact * contact_cost(p, tip)
+            + self.grasp * grasp_cost(p, quat, tip)
+            + self.control * controls.square().sum(-1)
+        ).sum(-1)
+        final = self.position * position_cost(
+            positions[..., -1, :], target_position
+        ) + self.orientation * quaternion_cost(quats[..., -1, :], target_quat)
+        return path + self.final * final

@@ -1,0 +1,57 @@
+"""The paper's MPC settings for the three-fingertip tasks (TASKS.md, fingertips column)."""
+
+from __future__ import annotations
+
+import torch
+
+from torchcontact.integrate import JointLayout
+from torchcontact.model import ComplementarityFree
+from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.costs import ManipulationCost
+from torchcontact.mpc.tasks import OBJECT_SETTINGS
+from torchcontact.stiffness import Constant, Relative
+from torchcontact.systems import QuasiDynamic
+
+OBJECT_MASS = 0.01  # [kg], the model's Mₒ in b = m·g
+GRAVITY = 9.8  # [m/s²]
+TRANSLATION_METRIC = 50.0  # εMₒ/h² on the object's translation [N/m]
+ROBOT_STIFFNESS = 100.0  # Kᵣ [N/m]
+CONTROL_BOUND = 0.005  # |u| per element [m of tip displacement per step]
+LAYOUT = JointLayout(["free"] + ["slide"] * 9)
+
+
+def fingertip_positions(q: torch.Tensor) -> torch.Tensor:
+    """Forward kinematics of free fingertips: ``q (..., 16) ↦ (..., 3, 3)`` [m]."""
+    return q[..., 7:16].unflatten(-1, (3, 3))
+
+
+def fingertips_mpc(obj: str, **options) -> ContactImplicitMPC:
+    """The complementarity-free MPC for object ``obj`` with the paper's fingertip settings.
+
+    K = 1, D = 0.1·K, γ = 100, n_d = 4, T = 4, h from the object's settings; ``options`` go to
+    :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``, ``dtype``, ...).
+    """
+    settings = OBJECT_SETTINGS[obj]
+    system = QuasiDynamic(
+        object_metric=[TRANSLATION_METRIC] * 3 + [settings.rotational_metric] * 3,
+        robot_stiffness=ROBOT_STIFFNESS,
+        object_force=[0.0, 0.0, -OBJECT_MASS * GRAVITY, 0.0, 0.0, 0.0],
+        n_robot=9,
+    )
+    model = ComplementarityFree(
+        stiffness=Constant(1.0, learnable=False),
+        damping=Relative(0.1, learnable=False),
+        gamma=100.0,
+        facets=4,
+    )
+    return ContactImplicitMPC(
+        system,
+        model,
+        LAYOUT,
+        fingertip_positions,
+        ManipulationCost(),
+        -CONTROL_BOUND,
+        CONTROL_BOUND,
+        h=settings.model_step,
+        **options,
+    )

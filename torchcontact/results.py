@@ -1,0 +1,64 @@
+"""Result files written atomically: a crash never leaves a half-written JSON, CSV or PNG."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+
+def atomic_write(
+    path: str | Path, write: Callable[[io.IOBase], None], binary: bool = False
+) -> Path:
+    """Call ``write(file)`` on a temporary file beside ``path``, then rename it onto ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as indented JSON (NumPy scalars and arrays become numbers and lists)."""
+
+    def default(x):
+        if hasattr(x, "tolist"):
+            return x.tolist()
+        raise TypeError(f"cannot write {type(x).__name__} to JSON")
+
+    return atomic_write(path, lambda f: json.dump(data, f, indent=2, default=default))
+
+
+def read_json(path: str | Path) -> Any:
+    """Read a JSON file written by :func:`write_json`."""
+    with open(path) as f:
+        return json.load(f)
+
+
+def write_csv(path: str | Path, rows: Iterable[Mapping[str, Any]]) -> Path:
+    """Write dict rows as CSV; the header is the union of keys in first-seen order."""
+    rows = list(rows)
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+
+    def write(f):
+        writer = csv.DictWriter(f, fieldnames=columns)
+        writer.writeheader()
+        writer.writerows(rows)
+
+    return atomic_write(path, write)
+
+
+def save_figure(figure, path: str | Path, dpi: int = 120) -> Path:
+    """Save a matplotlib figure as PNG atomically."""
+    return atomic_write(path, lambda f: figure.savefig(f, format="png", dpi=dpi), binary=True)
