@@ -50,7 +50,8 @@ class ContactImplicitMPC:
         u_lower, u_upper: ``(n_u,)`` or floats, the control box.
         horizon: T steps; h: the model's time step [s].
         max_iter, memory: L-BFGS iterations per solve and its memory.
-        compile: compile the objective with ``torch.compile`` (fast steps, slower first call).
+        compile: compile the objective and the optimizer's steps with ``torch.compile``
+            (fast steps; the first call compiles, cached on disk after that).
         dtype: of the solve.
     """
 
@@ -84,8 +85,9 @@ class ContactImplicitMPC:
         self.upper = torch.as_tensor(u_upper, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
-        self._objective = (
-            torch.compile(self.objective, dynamic=False) if compile else self.objective
+        self.compiled = compile
+        self._value_and_grad = (
+            torch.compile(self.value_and_grad, dynamic=False) if compile else self.value_and_grad
         )
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
 
@@ -118,6 +120,20 @@ class ContactImplicitMPC:
             target_quat,
         )
 
+    def value_and_grad(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
+
+        ``torch.func.grad`` rather than a recorded tape: one traced graph for value and
+        gradient, which ``torch.compile`` fuses (about 2× faster than compiling the tape).
+        """
+
+        def total(c):
+            cost = self.objective(c, *args)
+            return cost.sum(), cost  # rows are independent: ∇ of the sum is each row's ∇
+
+        grad, cost = torch.func.grad(total, has_aux=True)(controls)
+        return cost, grad
+
     def plan(
         self, q: torch.Tensor, contacts: Contacts, target_p: torch.Tensor, target_quat: torch.Tensor
     ) -> Plan:
@@ -135,11 +151,10 @@ class ContactImplicitMPC:
         shape = (self.horizon, self.system.n_robot)
 
         def value_and_grad(x: torch.Tensor):
-            controls = x.reshape(x.shape[0], *shape).detach().requires_grad_(True)
-            with torch.enable_grad(), validate_args(False):
-                f = self._objective(controls, q, jac, phi, K, D, target_p, target_quat)
-                (grad,) = torch.autograd.grad(f.sum(), controls)
-            return f.detach(), grad.reshape(x.shape)
+            controls = x.reshape(x.shape[0], *shape)
+            with validate_args(False):
+                f, grad = self._value_and_grad(controls, q, jac, phi, K, D, target_p, target_quat)
+            return f, grad.reshape(x.shape)
 
         result = lbfgs_box(
             value_and_grad,
@@ -148,6 +163,7 @@ class ContactImplicitMPC:
             self.upper,
             memory=self.memory,
             max_iter=self.max_iter,
+            compile_steps=self.compiled,
         )
         controls = result.x.reshape(shape)
         self._warm = torch.cat([controls[1:], controls[-1:]]).reshape(1, -1)

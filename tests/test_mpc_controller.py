@@ -1,0 +1,138 @@
+"""The contact-implicit MPC: rollout, gradients, box, warm start and a closed-loop smoke run."""
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from torchcontact.integrate import integrate
+from torchcontact.mpc import tasks
+from torchcontact.mpc.fingertips import CONTROL_BOUND, fingertips_mpc
+from torchcontact.sim import FingertipsEnv
+
+DT = torch.float64
+
+
+@pytest.fixture(scope="module")
+def env():
+    settings_ = tasks.OBJECT_SETTINGS["cube"]
+    return FingertipsEnv(
+        "cube", object_friction=settings_.object_friction, contact_slots=settings_.contact_slots
+    )
+
+
+@pytest.fixture(scope="module")
+def mpc():
+    return fingertips_mpc("cube", max_iter=15)
+
+
+def _touching_state(env):
+    """The cube 0.5 mm into the ground with tip 0 pressed 1 mm into its +x face."""
+    tips = np.array([0.039, 0.0, 0.03, 0.0, 0.2, 0.01, -0.2, 0.0, 0.01])
+    env.reset(np.array([0, 0, 0.0295, 1, 0, 0, 0.0]), tips=tips)
+    return torch.as_tensor(env.state()), env.contacts(DT)
+
+
+def _frozen_rows(mpc, q, contacts):
+    jac, phi, _ = contacts.dual_rows(mpc.model.facets)
+    K = mpc.model.stiffness(contacts, mpc.model.facets, q).expand(phi.shape)
+    D = mpc.model.damping(contacts, mpc.model.facets, q, K).expand(phi.shape)
+    return jac, phi, K, D
+
+
+def test_rollout_equals_stepping_the_model(env, mpc):
+    q, contacts = _touching_state(env)
+    assert int(contacts.n_active()) == 5  # four ground corners and the tip
+    jac, phi, K, D = _frozen_rows(mpc, q, contacts)
+    controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
+    states = mpc.rollout(q, controls, jac, phi, K, D)
+    assert states.shape == (2, mpc.horizon + 1, 16)
+    for b in range(2):
+        state = q
+        for t in range(mpc.horizon):
+            Q, bias = mpc.system(controls[b, t])
+            v = mpc.model(Q, bias, contacts, mpc.h, q)
+            state = integrate(state, v, mpc.h, mpc.layout)
+            torch.testing.assert_close(states[b, t + 1], state)
+
+
+def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, mpc):
+    q, contacts = _touching_state(env)
+    rows = _frozen_rows(mpc, q, contacts)
+    target = (torch.tensor([0.05, 0.02, 0.03], dtype=DT), torch.tensor([0.0, 0, 0, 1], dtype=DT))
+    controls = (0.004 * torch.randn(3, mpc.horizon, 9, dtype=DT)).requires_grad_(True)
+    cost, grad = mpc.value_and_grad(controls.detach(), q, *rows, *target)
+    taped = mpc.objective(controls, q, *rows, *target)
+    (taped_grad,) = torch.autograd.grad(taped.sum(), controls)
+    torch.testing.assert_close(cost, taped.detach())
+    torch.testing.assert_close(grad, taped_grad)
+    direction = torch.randn_like(controls)
+    eps = 1e-7
+    plus = mpc.objective(controls.detach() + eps * direction, q, *rows, *target)
+    minus = mpc.objective(controls.detach() - eps * direction, q, *rows, *target)
+    torch.testing.assert_close(
+        (plus - minus) / (2 * eps), (grad * direction).sum((-1, -2)), rtol=1e-5, atol=1e-7
+    )
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    task=st.sampled_from(["rotation", "flip", "in-air"]),
+    push=st.floats(-0.03, 0.03),
+)
+def test_planned_controls_never_leave_their_box(env, mpc, seed, task, push):
+    initial, target = tasks.sample(task, "cube", seed)
+    tips = np.array([0.03 + 0.01 + push, 0, 0.03, 0, 0.2, 0.01, -0.2, 0, 0.01])
+    env.reset(initial, target, tips=tips)
+    mpc.reset()
+    for _ in range(2):
+        plan = mpc.plan(
+            torch.as_tensor(env.state()),
+            env.contacts(DT),
+            torch.as_tensor(target[:3]),
+            torch.as_tensor(target[3:]),
+        )
+        assert plan.controls.shape == (mpc.horizon, 9)
+        assert bool((plan.controls.abs() <= CONTROL_BOUND).all())
+        assert np.isfinite(plan.cost)
+
+
+def test_warm_start_is_the_shifted_plan(env, mpc):
+    q, contacts = _touching_state(env)
+    mpc.reset()
+    target = (torch.tensor([0.05, 0.0, 0.03], dtype=DT), torch.tensor([1.0, 0, 0, 0], dtype=DT))
+    plan = mpc.plan(q, contacts, *target)
+    shifted = torch.cat([plan.controls[1:], plan.controls[-1:]]).reshape(1, -1)
+    torch.testing.assert_close(mpc._warm, shifted)
+    mpc.reset()
+    assert not mpc._warm.any()
+
+
+def test_closed_loop_moves_the_cube_toward_its_target(env, mpc):
+    """120 MPC steps of cube rotation (seed 1): the pose error shrinks in position and angle."""
+    initial, target = tasks.sample("rotation", "cube", 1)
+    env.reset(initial, target)
+    mpc.reset()
+    start_pos = tasks.position_error(initial[:3], target[:3])
+    start_angle = tasks.angle_error(initial[3:], target[3:])
+    for _ in range(120):
+        plan = mpc.plan(
+            torch.as_tensor(env.state()),
+            env.contacts(DT),
+            torch.as_tensor(target[:3]),
+            torch.as_tensor(target[3:]),
+        )
+        env.step(plan.control.numpy())
+    final = env.state()
+    assert tasks.position_error(final[:3], target[:3]) < 0.5 * start_pos
+    assert tasks.angle_error(final[3:7], target[3:]) < start_angle
+
+
+def test_bad_arguments_name_themselves(env, mpc):
+    with pytest.raises(ValueError, match="horizon"):
+        fingertips_mpc("cube", horizon=0)
+    q, contacts = _touching_state(env)
+    with pytest.raises(ValueError, match="q"):
+        mpc.plan(q[:10], contacts, torch.zeros(3, dtype=DT), torch.tensor([1.0, 0, 0, 0]))

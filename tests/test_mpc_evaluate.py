@@ -1,0 +1,61 @@
+"""``torchcontact run fingertips``: one short trial end to end, its files, and resuming."""
+
+import json
+
+import pytest
+
+from torchcontact.cli import main
+from torchcontact.mpc import evaluate
+from torchcontact.mpc.evaluate import SUMMARY_KEYS, summarize
+
+ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
+FAST = ["--max-steps", "15", "--max-iter", "5", "--no-compile", "--no-progress"]
+
+
+def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
+    summary_path = tmp_path / "summary.json"
+    assert main([*ARGS, *FAST, "--out", str(tmp_path / "out"), "--json", str(summary_path)]) == 0
+    summary = json.loads(summary_path.read_text())
+    assert set(SUMMARY_KEYS) <= set(summary)
+    assert summary["trials"] == 1 and summary["success_rate"] == 0.0  # 15 steps are too few
+    assert summary["solve_ms_median"] > 0 and summary["pos_err_mm_mean"] > 0
+    out = tmp_path / "out"
+    assert (out / "trials.csv").read_text().startswith("task,object,seed,success")
+    assert (out / "results.png").stat().st_size > 0
+    record = json.loads((out / "trials" / "fingertips_rotation_cube_seed0.json").read_text())
+    assert record["steps"] == 15 and len(record["solve_ms"]) == 15
+    printed = capsys.readouterr().out
+    assert "rotation" in printed and "success 0.0% of 1" in printed
+
+
+def test_finished_trials_are_not_run_again(tmp_path, monkeypatch):
+    out = str(tmp_path / "out")
+    main([*ARGS, *FAST, "--out", out])
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("a finished trial was run again")
+
+    monkeypatch.setattr(evaluate, "run_trial", must_not_run)
+    assert main([*ARGS, *FAST, "--out", out]) == 0
+    with pytest.raises(AssertionError, match="run again"):  # other settings: a new trial
+        main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", out])
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (["--trials", "0"], "--trials"),
+        (["--task", "spin"], "--task"),
+        (["--object", "teapot"], "--object"),
+    ],
+)
+def test_bad_options_are_refused(tmp_path, capsys, bad, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["run", "fingertips", *bad, "--out", str(tmp_path)])
+    assert exit_info.value.code not in (0, None)
+    assert message in capsys.readouterr().err + str(exit_info.value.code)
+
+
+def test_summary_needs_records():
+    with pytest.raises(ValueError, match="records"):
+        summarize([])
