@@ -18,11 +18,9 @@ import os
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
-import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -32,6 +30,7 @@ import torch  # noqa: E402
 from scipy.optimize import minimize  # noqa: E402
 
 from torchcontact.mpc.optim import lbfgs_box  # noqa: E402
+from torchcontact.results import write_json  # noqa: E402
 
 torch.set_num_threads(1)
 
@@ -141,20 +140,6 @@ def convergence(seed: int, trial_steps: tuple[float, ...], repeats: int) -> dict
         "x_gap_to_scipy": float(np.abs(result.x[0].numpy() - reference.x).max()),
         "active_bounds": int(np.isclose(np.abs(reference.x), BOX).sum()),
     }
-
-
-def write_json(path: Path, data: dict) -> None:
-    """Write ``data`` to ``path`` through a temporary file and ``os.replace`` (atomic)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 def main(argv: list[str] | None = None) -> int:

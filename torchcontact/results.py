@@ -22,6 +22,7 @@ def atomic_write(
     try:
         with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
             write(f)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

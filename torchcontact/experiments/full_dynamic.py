@@ -56,12 +56,8 @@ Run ``python -m torchcontact.experiments.full_dynamic --help``.
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
 import math
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -73,6 +69,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import AnitescuQP, ComplementarityFree, ContactModel
+from torchcontact.results import atomic_write, save_figure, write_csv
 from torchcontact.sim import ContactDetector, bias_force, joint_layout, mass_matrix
 from torchcontact.stiffness import Constant
 from torchcontact.systems import full_dynamic
@@ -592,20 +589,6 @@ def run_setting(setting: Setting, progress: bool = True) -> dict:
 # --- output ---------------------------------------------------------------------------------
 
 
-def _atomic_write(path: Path, write: Callable[[io.IOBase], None], binary: bool = False) -> None:
-    """Write through a temporary file in ``path``'s folder, then ``os.replace`` it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb" if binary else "w", newline=None if binary else "") as f:
-            write(f)
-        os.chmod(tmp, 0o644)  # mkstemp makes it 0600
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-
-
 def trace_columns(result: dict) -> dict[str, np.ndarray]:
     """Per-step columns of a setting for its CSV: time, then per run x-velocity (setting 1) or
     height, v_z and ‖v‖ (settings 2–3)."""
@@ -624,15 +607,12 @@ def trace_columns(result: dict) -> dict[str, np.ndarray]:
     return columns
 
 
-def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
+def write_trace_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
     """One row per step, one column per entry of ``columns``."""
-
-    def write(f):
-        writer = csv.writer(f)
-        writer.writerow(list(columns))
-        writer.writerows(np.column_stack(list(columns.values())).tolist())
-
-    _atomic_write(path, write)
+    names = list(columns)
+    write_csv(
+        path, (dict(zip(names, row, strict=True)) for row in zip(*columns.values(), strict=True))
+    )
 
 
 AFTER_IMPACT = 0.01
@@ -689,7 +669,7 @@ def plot_setting(path: Path, result: dict) -> None:
     axes[-1].set_xlabel("time [s]")
     window = f" (from {time[0]:.2f} s: after the impact)" if number == 3 else ""
     fig.suptitle(f"Setting {number}: {result['setting']['title']}{window}", fontsize=10)
-    _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
+    save_figure(fig, path, dpi=110)
 
 
 def format_table(result: dict) -> str:
@@ -760,13 +740,13 @@ def write_outputs(out: Path, results: Sequence[dict], json_path: Path | None, pl
     (metrics, constants) in ``out`` and, if given, at ``json_path``."""
     for result in results:
         number = result["setting"]["number"]
-        write_csv(out / f"setting{number}.csv", trace_columns(result))
+        write_trace_csv(out / f"setting{number}.csv", trace_columns(result))
         if plots:
             plot_setting(out / f"setting{number}.png", result)
     document = {"settings": [summary(r) for r in results]}
     text = json.dumps(document, indent=2, allow_nan=False)
     for path in {out / "full_dynamic.json", *([json_path] if json_path else [])}:
-        _atomic_write(path, lambda f: f.write(text + "\n"))
+        atomic_write(path, lambda f: f.write(text + "\n"))
 
 
 # --- command line ---------------------------------------------------------------------------
