@@ -345,9 +345,11 @@ def test_overflow_error_and_deepest():
     n = int(full.n_active())
     with pytest.raises(ValueError, match="slots"):
         ContactDetector(model, ["object"], slots=n - 1, margin=MARGIN)(q)
-    deepest = ContactDetector(
+    truncating = ContactDetector(
         model, ["object"], slots=n - 1, margin=MARGIN, overflow="deepest", dtype=torch.float64
-    )(q)
+    )
+    deepest = truncating(q)
+    assert truncating.found == n  # the count before truncation is reported
     assert bool(deepest.active.all())
     smallest = torch.sort(full.phi[full.active]).values[: n - 1]
     torch.testing.assert_close(torch.sort(deepest.phi).values, smallest)

@@ -84,6 +84,8 @@ class ContactDetector:
         self.dtype = dtype or torch.get_default_dtype()
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         self._jacp = np.zeros((3, model.nv))
+        self.found = 0
+        """Relevant contacts found by the last detection, before any ``"deepest"`` truncation."""
 
     def __call__(self, qpos) -> Contacts:
         """Contacts at ``qpos: (nq,)`` or a batch ``(..., nq)`` (array or tensor)."""
@@ -133,6 +135,7 @@ class ContactDetector:
 
     def _extract(self, m: mujoco.MjModel, d: mujoco.MjData) -> dict[str, np.ndarray]:
         kept = self._relevant(m, d)
+        self.found = len(kept)
         if len(kept) > self.slots:
             if self.overflow == "error":
                 raise ValueError(
