@@ -21,7 +21,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
-from torchcontact.mpc.fingertips import fingertips_mpc
+from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
 from torchcontact.results import read_json, save_figure, write_csv, write_json
 
 SUMMARY_KEYS = (
@@ -46,6 +46,7 @@ class TrialConfig:
     max_iter: int
     compile: bool
     dtype: str
+    stiffness: float
 
     @property
     def name(self) -> str:
@@ -207,6 +208,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--trials", type=int, default=tasks.TRIALS, help="seeds 0…trials−1")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--max-iter", type=int, default=30, help="L-BFGS iterations per step")
+    parser.add_argument("--stiffness", type=float, default=STIFFNESS, help="the model's K")
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
     parser.add_argument("--out", type=Path, default=Path("results/mpc"), help="output folder")
@@ -214,6 +216,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
+    if not args.stiffness > 0:
+        parser.error(f"--stiffness must be positive, got {args.stiffness}")
     if args.trials < 1:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     if args.max_steps is not None and args.max_steps < 1:
@@ -258,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.max_iter,
                 not args.no_compile,
                 args.dtype,
+                args.stiffness,
             )
             path = trials_dir / f"{config.name}.json"
             record = read_json(path) if path.exists() else None
@@ -265,7 +270,11 @@ def main(argv: list[str] | None = None) -> int:
                 if env is None:
                     env = _fingertips_env(obj)
                     mpc = fingertips_mpc(
-                        obj, max_iter=args.max_iter, compile=not args.no_compile, dtype=dtype
+                        obj,
+                        stiffness=args.stiffness,
+                        max_iter=args.max_iter,
+                        compile=not args.no_compile,
+                        dtype=dtype,
                     )
                 frames = [] if args.video and seed == 0 else None
                 record = run_trial(config, env, mpc, frames)

@@ -17,6 +17,7 @@ GRAVITY = 9.8  # [m/s²]
 TRANSLATION_METRIC = 50.0  # εMₒ/h² on the object's translation [N/m]
 ROBOT_STIFFNESS = 100.0  # Kᵣ [N/m]
 CONTROL_BOUND = 0.005  # |u| per element [m of tip displacement per step]
+STIFFNESS = 1.0  # K, the paper's
 LAYOUT = JointLayout(["free"] + ["slide"] * 9)
 
 
@@ -25,11 +26,11 @@ def fingertip_positions(q: torch.Tensor) -> torch.Tensor:
     return q[..., 7:16].unflatten(-1, (3, 3))
 
 
-def fingertips_mpc(obj: str, **options) -> ContactImplicitMPC:
+def fingertips_mpc(obj: str, stiffness: float = STIFFNESS, **options) -> ContactImplicitMPC:
     """The complementarity-free MPC for object ``obj`` with the paper's fingertip settings.
 
-    K = 1, D = 0.1·K, γ = 100, n_d = 4, T = 4, h from the object's settings; ``options`` go to
-    :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``, ``dtype``, ...).
+    K = ``stiffness``, D = 0.1·K, γ = 100, n_d = 4, T = 4, h from the object's settings;
+    ``options`` go to :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``, ...).
     """
     settings = OBJECT_SETTINGS[obj]
     system = QuasiDynamic(
@@ -39,7 +40,7 @@ def fingertips_mpc(obj: str, **options) -> ContactImplicitMPC:
         n_robot=9,
     )
     model = ComplementarityFree(
-        stiffness=Constant(1.0, learnable=False),
+        stiffness=Constant(stiffness, learnable=False),
         damping=Relative(0.1, learnable=False),
         gamma=100.0,
         facets=4,

@@ -45,6 +45,7 @@ def test_finished_trials_are_not_run_again(tmp_path, monkeypatch):
     "bad, message",
     [
         (["--trials", "0"], "--trials"),
+        (["--stiffness", "-1"], "--stiffness"),
         (["--task", "spin"], "--task"),
         (["--object", "teapot"], "--object"),
     ],
