@@ -239,10 +239,11 @@ def _scene_spec(
         dir=[0.0, -0.3, -1.0],
         diffuse=[0.8, 0.8, 0.8],
         ambient=[0.3, 0.3, 0.3],
+        castshadow=False,  # the translucent goal marker would cast an opaque shadow
     )
     world.add_camera(
         name="overview",
-        pos=[0.0, -0.3, 0.2],
+        pos=[0.0, -0.42, 0.3],
         mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY,
         targetbody="world",
     )
