@@ -144,10 +144,9 @@ class ContactImplicitMPC:
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         with torch.no_grad():
             jac, phi, _ = contacts.dual_rows(self.model.facets)
-            K = self.model.stiffness(contacts, self.model.facets, q).expand(phi.shape)
-            D = None
-            if self.model.damping is not None:
-                D = self.model.damping(contacts, self.model.facets, q, K).expand(phi.shape)
+            K, D = self.model.coefficients(contacts, q)
+            K = K.expand(phi.shape)
+            D = None if D is None else D.expand(phi.shape)
         shape = (self.horizon, self.system.n_robot)
 
         def value_and_grad(x: torch.Tensor):

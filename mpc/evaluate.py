@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
 from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
-from torchcontact.results import read_json, save_figure, write_csv, write_json
+from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 
 SUMMARY_KEYS = (
     "success_rate",
@@ -176,8 +176,6 @@ def plot_results(records: list[dict], path: Path) -> Path:
 def save_gif(frames: list[np.ndarray], path: Path, fps: int = 10) -> Path:
     """Write RGB frames ``(H, W, 3) uint8`` as an animated GIF."""
     from PIL import Image
-
-    from torchcontact.results import atomic_write
 
     images = [Image.fromarray(frame) for frame in frames]
     return atomic_write(

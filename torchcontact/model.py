@@ -82,10 +82,15 @@ class ComplementarityFree(ContactModel):
         self.gamma = None if gamma is None else float(gamma)
         self.facets = _check_facets(facets)
 
-    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
-        jac, phi, active = contacts.dual_rows(self.facets)
+    def coefficients(self, contacts: Contacts, q=None):
+        """K(q) and D(q) (None without damping), each broadcastable to ``(..., nc·n_d)``."""
         K = self.stiffness(contacts, self.facets, q)
         D = None if self.damping is None else self.damping(contacts, self.facets, q, K)
+        return K, D
+
+    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        jac, phi, active = contacts.dual_rows(self.facets)
+        K, D = self.coefficients(contacts, q)
         lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma)
         lam = lam * active.to(lam.dtype)
         v = velocity_from_multipliers(solve, b, jac, lam, h)

@@ -82,8 +82,8 @@ class BoxPushingConfig:
         gamma: softplus sharpness of the CF model; None for the exact ``max(·, 0)``.
         facets: friction-cone facets per contact.
         qp_settings: OSQP settings of the QP baseline, over the library's
-            (:data:`torchcontact.qp.OSQP_SETTINGS`). Its 1e-10 tolerances end in "solved
-            inaccurate" at 10 cubes; 1e-6 keeps v⁺ within ~2e-4 m/s of the 1e-10 solution.
+            (:data:`torchcontact.qp.OSQP_SETTINGS`). 1e-10 ends in "solved inaccurate" at
+            10 cubes; 1e-6 keeps v⁺ within ~2e-4 m/s of the 1e-10 solution.
         warmup: first steps of each rollout left out of the timing medians.
     """
 
