@@ -1,8 +1,11 @@
 """Closed-loop evaluation: run MPC trials in MuJoCo, summarize, plot, record.
 
-``torchcontact run fingertips --task in-air --object cube --trials 20`` runs trial seeds
-0…19, writes one JSON per finished trial (atomically, so an interrupted sweep resumes where it
-stopped), then a summary (JSON + CSV), the paper-style figure and, on request, a GIF.
+``torchcontact run fingertips --task in-air --object cube --trials 20`` (or ``run trifinger``,
+``run allegro``) runs trial seeds 0…19 of each selected (task, object) pair, writes one JSON
+per finished trial (atomically, so an interrupted sweep resumes where it stopped), then a
+summary (JSON + CSV), the paper-style figure and, on request, a GIF. ``--workers N`` runs
+trials in N processes; a trial depends only on its configuration, so the records are the
+same as a serial run's (timings aside).
 
 Per control step: detect contacts at the real state (MuJoCo), solve the MPC (torch), and
 simulate the applied control (MuJoCo); the three times are recorded separately.
@@ -11,6 +14,8 @@ simulate the applied control (MuJoCo); the three times are recorded separately.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import multiprocessing
 import os
 import time
 from dataclasses import dataclass
@@ -21,7 +26,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
-from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
+from torchcontact.mpc.suites import SUITES
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 
 SUMMARY_KEYS = (
@@ -50,33 +55,24 @@ class TrialConfig:
 
     @property
     def name(self) -> str:
-        return f"{self.env}_{self.task}_{self.object}_seed{self.seed}"
+        """File stem of the trial's record (a mesh path contributes its file stem)."""
+        return f"{self.env}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
 
 
-def _fingertips_env(obj: str):
-    from torchcontact.sim import FingertipsEnv
-
-    settings = tasks.OBJECT_SETTINGS[obj]
-    # A multi-part mesh can touch in more places than the model has slots; the MPC then keeps
-    # the deepest contacts and every trial records how often that happened.
-    return FingertipsEnv(
-        obj,
-        object_friction=settings.object_friction,
-        contact_slots=settings.contact_slots,
-        overflow="deepest",
-    )
-
-
-def run_trial(config: TrialConfig, env, mpc, frames: list | None = None, frame_every: int = 5):
+def run_trial(
+    config: TrialConfig, env, mpc, frames: list | None = None, frame_every: int = 5
+) -> dict:
     """Run one trial to success or ``max_steps``; returns its record (a JSON-able dict)."""
-    initial, target = tasks.sample(config.task, config.object, config.seed)
+    suite = SUITES[config.env]
+    initial, target = suite.sample(env, config.task, config.object, config.seed)
     env.reset(initial, target)
     mpc.reset()
-    tracker = tasks.SuccessTracker(target)
+    criterion = dataclasses.replace(suite.criterion, max_steps=config.max_steps)
+    tracker = tasks.SuccessTracker(target, criterion)
     target_p = torch.as_tensor(target[:3])
     target_quat = torch.as_tensor(target[3:])
     detect_ms, solve_ms, sim_ms, iterations, found = [], [], [], [], []
-    for step in range(config.max_steps):
+    for step in range(criterion.max_steps):
         t0 = time.perf_counter()
         contacts = env.contacts(mpc.dtype)
         found.append(env.detector.found)
@@ -109,6 +105,8 @@ def run_trial(config: TrialConfig, env, mpc, frames: list | None = None, frame_e
         "solve_ms": solve_ms,
         "sim_ms": sim_ms,
         "iterations": iterations,
+        "contact_slots": env.detector.slots,
+        "contacts_found_mean": float(np.mean(found)),
         "contacts_found_max": max(found),
         "steps_with_dropped_contacts": sum(n > env.detector.slots for n in found),
     }
@@ -189,110 +187,173 @@ def save_gif(frames: list[np.ndarray], path: Path, fps: int = 10) -> Path:
 
 def _table_row(record: dict) -> str:
     return (
-        f"{record['task']:>9s} {record['object']:>11s} {record['seed']:>4d} "
+        f"{record['task']:>9s} {Path(record['object']).stem[:11]:>11s} {record['seed']:>4d} "
         f"{'yes' if record['success'] else 'no':>7s} {record['steps']:>5d} "
         f"{record['pos_err_mm']:>8.1f} {record['quat_err']:>8.4f} {record['angle_err_deg']:>7.1f} "
         f"{np.median(record['solve_ms']):>8.1f}"
     )
 
 
+TABLE_HEADER = (
+    f"{'task':>9s} {'object':>11s} {'seed':>4s} {'success':>7s} {'steps':>5s} "
+    f"{'pos [mm]':>8s} {'quat err':>8s} {'ang [°]':>7s} {'solve ms':>8s}"
+)
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="torchcontact run", description="Closed-loop MPC trials in MuJoCo."
     )
-    parser.add_argument("env", choices=["fingertips"], help="the environment")
-    parser.add_argument("--task", default="rotation", help=f"one of {tasks.TASKS} or 'all'")
-    parser.add_argument("--object", default="cube", help="an object name or 'all'")
+    parser.add_argument("env", choices=sorted(SUITES), help="the environment")
+    parser.add_argument("--task", default="all", help="a task of the environment or 'all'")
+    parser.add_argument(
+        "--object", default="cube", help="an object name, 'all', or (hands) a mesh file"
+    )
     parser.add_argument("--trials", type=int, default=tasks.TRIALS, help="seeds 0…trials−1")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--max-iter", type=int, default=30, help="L-BFGS iterations per step")
-    parser.add_argument("--stiffness", type=float, default=STIFFNESS, help="the model's K")
+    parser.add_argument("--stiffness", type=float, default=None, help="K; default the paper's")
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
-    parser.add_argument("--out", type=Path, default=Path("results/mpc"), help="output folder")
+    parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
+    parser.add_argument("--out", type=Path, default=None, help="default results/ENV")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here too")
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    if not args.stiffness > 0:
+    if args.stiffness is not None and not args.stiffness > 0:
         parser.error(f"--stiffness must be positive, got {args.stiffness}")
-    if args.trials < 1:
-        parser.error(f"--trials must be >= 1, got {args.trials}")
+    for name in ("trials", "workers", "max_iter"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.max_steps is not None and args.max_steps < 1:
         parser.error(f"--max-steps must be >= 1, got {args.max_steps}")
+    suite = SUITES[args.env]
+    try:
+        args.pairs = suite.select(args.task, args.object)
+    except ValueError as error:
+        parser.error(str(error))
+    args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
+    args.out = Path("results") / args.env if args.out is None else args.out
     return args
 
 
-def _pairs(task: str, obj: str) -> list[tuple[str, str]]:
-    pairs = [(t, o) for t, o in tasks.PAPER_PAIRS if task in ("all", t) and obj in ("all", o)]
-    if task not in ("all", *tasks.TASKS):
-        raise SystemExit(f"--task must be one of {tasks.TASKS} or 'all', got {task!r}")
-    if obj not in ("all", *tasks.OBJECT_SETTINGS):
-        raise SystemExit(
-            f"--object must be one of {tuple(tasks.OBJECT_SETTINGS)} or 'all', got {obj!r}"
+@dataclass(frozen=True)
+class Job:
+    """One trial to run, with where its record goes and whether to record frames."""
+
+    config: TrialConfig
+    path: Path
+    video: Path | None
+
+
+_CACHE: dict = {}  # per process: the plant and MPC of the last (env, object, options)
+
+
+def _run_job(job: Job) -> dict:
+    """Run ``job`` (reusing this process's plant and MPC when they match) and save it."""
+    torch.set_num_threads(1)
+    c = job.config
+    key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness)
+    if _CACHE.get("key") != key:
+        suite = SUITES[c.env]
+        _CACHE.clear()
+        _CACHE.update(
+            key=key,
+            env=suite.make_env(c.object),
+            mpc=suite.make_mpc(
+                c.object,
+                c.stiffness,
+                max_iter=c.max_iter,
+                compile=c.compile,
+                dtype=getattr(torch, c.dtype),
+            ),
         )
-    if not pairs:
-        raise SystemExit(f"no paper task pairs {task!r} with object {obj!r}")
-    return pairs
+    frames = [] if job.video is not None else None
+    record = run_trial(c, _CACHE["env"], _CACHE["mpc"], frames)
+    write_json(job.path, record)
+    if frames:
+        save_gif(frames, job.video)
+    return record
+
+
+def _finished(path: Path, config: TrialConfig) -> dict | None:
+    """The saved record of ``config`` at ``path``, None if absent or run with other settings."""
+    if not path.exists():
+        return None
+    record = read_json(path)
+    return record if all(record.get(k) == v for k, v in config.__dict__.items()) else None
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     torch.set_num_threads(1)
     args = parse_args(argv)
-    dtype = getattr(torch, args.dtype)
-    records = []
+    suite = SUITES[args.env]
     trials_dir = args.out / "trials"
-    header = f"{'task':>9s} {'object':>11s} {'seed':>4s} {'success':>7s} {'steps':>5s} "
-    header += f"{'pos [mm]':>8s} {'quat err':>8s} {'ang [°]':>7s} {'solve ms':>8s}"
-    print(header)
-    for task, obj in _pairs(args.task, args.object):
-        max_steps = args.max_steps or tasks.FINGERTIPS_SUCCESS.max_steps
-        env, mpc, pair_records = None, None, []
-        bar = tqdm(range(args.trials), desc=f"{task} {obj}", disable=args.no_progress)
-        for seed in bar:
+    done: dict[TrialConfig, dict] = {}
+    jobs: list[Job] = []
+    for task, obj in args.pairs:
+        for seed in range(args.trials):
             config = TrialConfig(
-                "fingertips",
+                args.env,
                 task,
                 obj,
                 seed,
-                max_steps,
+                args.max_steps or suite.criterion.max_steps,
                 args.max_iter,
                 not args.no_compile,
                 args.dtype,
                 args.stiffness,
             )
             path = trials_dir / f"{config.name}.json"
-            record = read_json(path) if path.exists() else None
-            if record is None or any(record.get(k) != v for k, v in config.__dict__.items()):
-                if env is None:
-                    env = _fingertips_env(obj)
-                    mpc = fingertips_mpc(
-                        obj,
-                        stiffness=args.stiffness,
-                        max_iter=args.max_iter,
-                        compile=not args.no_compile,
-                        dtype=dtype,
-                    )
-                frames = [] if args.video and seed == 0 else None
-                record = run_trial(config, env, mpc, frames)
-                write_json(path, record)
-                if frames:
-                    save_gif(frames, args.out / f"{config.name}.gif")
-            pair_records.append(record)
+            record = _finished(path, config)
+            if record is not None:
+                done[config] = record
+                continue
+            video = args.out / f"{config.name}.gif" if args.video and seed == 0 else None
+            jobs.append(Job(config, path, video))
+    print(TABLE_HEADER)
+    for record in done.values():
+        tqdm.write(_table_row(record))
+    bar = tqdm(total=len(jobs), desc=f"{args.env} trials", disable=args.no_progress)
+    new = []
+    if args.workers == 1:
+        results = map(_run_job, jobs)
+        pool = None
+    else:
+        pool = multiprocessing.get_context("spawn").Pool(min(args.workers, len(jobs) or 1))
+        results = pool.imap_unordered(_run_job, jobs)
+    try:
+        for record in results:
+            new.append(record)
             tqdm.write(_table_row(record))
-            bar.set_postfix(success=f"{np.mean([r['success'] for r in pair_records]):.0%}")
-        records += pair_records
+            bar.update()
+            bar.set_postfix(success=f"{np.mean([r['success'] for r in new]):.0%}")
+    finally:
+        bar.close()
+        if pool is not None:
+            pool.close()
+            pool.join()
+    records = list(done.values()) + new
+    records.sort(key=lambda r: (args.pairs.index((r["task"], r["object"])), r["seed"]))
     summary = summarize(records)
     summary["pairs"] = {
         f"{task} {obj}": summarize([r for r in records if (r["task"], r["object"]) == (task, obj)])
-        for task, obj in sorted({(r["task"], r["object"]) for r in records})
+        for task, obj in args.pairs
     }
     write_json(args.out / "summary.json", summary)
     write_csv(args.out / "trials.csv", [_csv_row(r) for r in records])
     plot_results(records, args.out / "results.png")
     if args.json is not None:
         write_json(args.json, summary)
+    if len(args.pairs) > 1:
+        print(f"{'pair':>30s} {'success':>8s} {'pos [mm]':>9s} {'ang [°]':>8s} {'solve ms':>9s}")
+        for pair, s in summary["pairs"].items():
+            print(
+                f"{pair:>30s} {100 * s['success_rate']:>7.0f}% {s['pos_err_mm_mean']:>9.1f} "
+                f"{s['angle_err_deg_mean']:>8.1f} {s['solve_ms_median']:>9.1f}"
+            )
     print(
         f"success {100 * summary['success_rate']:.1f}% of {summary['trials']} | "
         f"final position {summary['pos_err_mm_mean']:.1f} mm, "

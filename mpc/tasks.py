@@ -1,4 +1,8 @@
-"""The paper's three-fingertip tasks: pose samplers, per-object settings, errors, success.
+"""The paper's tasks: pose samplers, per-object settings, errors and success criteria.
+
+The three-fingertip tasks (rotation, flip, in-air) have per-object settings here; the hand
+tasks (TriFinger in-hand, Allegro on-palm) take their resting poses from the plant, which
+knows its object's shape and the support it rests on.
 
 Poses are ``(7,)`` arrays: position [m] then a unit quaternion (w, x, y, z), as in MuJoCo.
 Every function here is pure NumPy.
@@ -12,6 +16,7 @@ distributions are the same).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,6 +158,20 @@ class SuccessCriterion:
 FINGERTIPS_SUCCESS = SuccessCriterion()
 """The fingertip tasks' criterion: 2 cm, e < 0.015 (14.1°), 20 steps, 2000 steps at most."""
 
+TRIFINGER_SUCCESS = SuccessCriterion(quaternion_tolerance=0.04, max_steps=500)
+"""TriFinger in-hand: 2 cm, e < 0.04 (23.1°), 20 steps, 500 steps at most."""
+
+ALLEGRO_SUCCESS = SuccessCriterion(
+    position_tolerance=math.inf, quaternion_tolerance=0.04, max_steps=500
+)
+"""Allegro on-palm: orientation only, e < 0.04 (23.1°), 20 steps, 500 steps at most."""
+
+IN_HAND_XY_RANGE = 0.05
+"""TriFinger initial and target x, y ~ U[−0.05, 0.05] [m]; yaw ~ U[−π/2, π/2]."""
+
+ON_PALM_XY_STD = 0.005
+"""Allegro initial x, y ~ palm centre + N(0, 0.005²) [m]; yaw ~ U[−π/2, π/2]."""
+
 
 # --- rotations ---------------------------------------------------------------------------
 
@@ -225,9 +244,7 @@ def sample(task: str, obj: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
     settings = OBJECT_SETTINGS[obj]
     if not settings.supports(task):
         raise ValueError(f"task {task!r} is not defined for obj {obj!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    rng = np.random.default_rng(int(seed))
+    rng = np.random.default_rng(_seed(seed))
     initial_xy = rng.uniform(-INITIAL_XY_RANGE, INITIAL_XY_RANGE, 2)
     initial_quat = quat_from_yaw_pitch_roll(rng.uniform(-np.pi, np.pi))
     initial = np.concatenate([initial_xy, [settings.rest_height], initial_quat])
@@ -247,6 +264,52 @@ def sample(task: str, obj: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
         quat = quat_from_axis_angle(axis, angle)
     target = np.concatenate([target_xy, [height], quat])
     return initial, target
+
+
+RestingPose = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""``(xy (2,), quat (4,)) ↦ (7,)`` pose resting on the support (``HandEnv.resting_pose``)."""
+
+
+def sample_in_hand(resting_pose: RestingPose, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """TriFinger in-hand trial ``seed``: initial and target poses ``(7,), (7,)``.
+
+    Draws from ``np.random.default_rng(seed)``: initial x, y ~ U[−0.05, 0.05], yaw ~
+    U[−π/2, π/2]; then the target's x, y and yaw from the same ranges; both rest upright.
+    """
+    rng = np.random.default_rng(_seed(seed))
+    initial = resting_pose(
+        rng.uniform(-IN_HAND_XY_RANGE, IN_HAND_XY_RANGE, 2),
+        quat_from_yaw_pitch_roll(rng.uniform(-np.pi / 2, np.pi / 2)),
+    )
+    target = resting_pose(
+        rng.uniform(-IN_HAND_XY_RANGE, IN_HAND_XY_RANGE, 2),
+        quat_from_yaw_pitch_roll(rng.uniform(-np.pi / 2, np.pi / 2)),
+    )
+    return initial, target
+
+
+def sample_on_palm(resting_pose: RestingPose, centre, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Allegro on-palm trial ``seed``: initial and target poses ``(7,), (7,)``.
+
+    Draws from ``np.random.default_rng(seed)``: initial x, y ~ ``centre (2,)`` + N(0,
+    0.005²), yaw ~ U[−π/2, π/2], then the turn direction s = ±1 (fair coin); the target rests at
+    the palm centre with yaw = initial yaw + s·π/2.
+    """
+    rng = np.random.default_rng(_seed(seed))
+    centre = np.asarray(centre, dtype=float)
+    yaw = rng.uniform(-np.pi / 2, np.pi / 2)
+    initial = resting_pose(
+        centre + ON_PALM_XY_STD * rng.standard_normal(2), quat_from_yaw_pitch_roll(yaw)
+    )
+    turn = np.pi / 2 if rng.uniform() < 0.5 else -np.pi / 2
+    target = resting_pose(centre, quat_from_yaw_pitch_roll(yaw + turn))
+    return initial, target
+
+
+def _seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
 
 
 # --- success -----------------------------------------------------------------------------

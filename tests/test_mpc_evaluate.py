@@ -60,3 +60,46 @@ def test_bad_options_are_refused(tmp_path, capsys, bad, message):
 def test_summary_needs_records():
     with pytest.raises(ValueError, match="records"):
         summarize([])
+
+
+TIMINGS = {"detect_ms", "solve_ms", "sim_ms"}
+
+
+def _records(out):
+    return {
+        path.name: {k: v for k, v in json.loads(path.read_text()).items() if k not in TIMINGS}
+        for path in sorted((out / "trials").glob("*.json"))
+    }
+
+
+def test_parallel_workers_give_the_serial_records(tmp_path):
+    two = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "2"]
+    main([*two, *FAST, "--out", str(tmp_path / "serial")])
+    main([*two, *FAST, "--workers", "2", "--out", str(tmp_path / "parallel")])
+    serial, parallel = _records(tmp_path / "serial"), _records(tmp_path / "parallel")
+    assert len(serial) == 2 and serial == parallel
+
+
+def test_an_interrupted_sweep_resumes_without_redoing_finished_trials(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    two = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "2"]
+    original, calls = evaluate.run_trial, []
+
+    def interrupted_after_one(config, *args, **kwargs):
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(config.seed)
+        return original(config, *args, **kwargs)
+
+    monkeypatch.setattr(evaluate, "run_trial", interrupted_after_one)
+    with pytest.raises(KeyboardInterrupt):
+        main([*two, *FAST, "--out", str(out)])
+    assert [p.name for p in (out / "trials").glob("*.json")] == [
+        "fingertips_rotation_cube_seed0.json"
+    ]
+    ran = []
+    monkeypatch.setattr(
+        evaluate, "run_trial", lambda c, *a, **k: ran.append(c.seed) or original(c, *a, **k)
+    )
+    assert main([*two, *FAST, "--out", str(out)]) == 0
+    assert ran == [1]

@@ -17,18 +17,11 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import torch
 
-from torchcontact.contacts import Contacts
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.objects import (
-    OBJECT_SIZES,
-    ObjectMesh,
-    add_goal_marker,
-    add_object,
-    load_object,
-    make_object,
-)
+from torchcontact.sim.objects import ObjectMesh
+from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
+from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
 TIP_RADIUS = 0.01
 """Fingertip sphere radius [m]."""
@@ -38,12 +31,10 @@ INITIAL_TIPS = np.array([0.2, 0.0, TIP_RADIUS, 0.0, 0.2, TIP_RADIUS, -0.2, 0.0, 
 ground (the reference code starts them at z = 0, half sunk into the floor, which the contact
 solver then pushes out)."""
 
-OBJECT_BODY = "object"
-GOAL_BODY = "goal"
 TIP_BODIES = ("tip0", "tip1", "tip2")
 
 
-class FingertipsEnv:
+class FingertipsEnv(Plant):
     """MuJoCo plant of the three-fingertip tasks, built in code with ``MjSpec``.
 
     Args:
@@ -66,8 +57,6 @@ class FingertipsEnv:
         timestep: MuJoCo substep [s].
         kp, kd: PD gains of the tip servo [N/m], [N·s/m].
     """
-
-    nq, nv, nu = 16, 15, 9
 
     def __init__(
         self,
@@ -97,7 +86,8 @@ class FingertipsEnv:
         for name, value in (("tip_friction", tip_friction), ("ground_friction", ground_friction)):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
-        self.object = _resolve_object(obj, object_size, mass)
+        super().__init__()
+        self.object = resolve_object(obj, object_size, mass)
         self.frame_skip, self.kp, self.kd = frame_skip, float(kp), float(kd)
         spec = _scene_spec(self.object, object_friction, tip_friction, ground_friction, condim)
         spec.option.timestep = timestep
@@ -107,7 +97,6 @@ class FingertipsEnv:
             self.model, [OBJECT_BODY], contact_slots, mu=contact_mu, overflow=overflow
         )
         self._tip_dofs = np.arange(6, 15)
-        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
         resting = np.array([0, 0, self.object.resting_height(), 1, 0, 0, 0], dtype=float)
         self.reset(resting, resting)
 
@@ -121,33 +110,14 @@ class FingertipsEnv:
             target_pose: ``(7,)`` pose shown by the goal marker; None keeps the current one.
             tips: ``(9,)`` tip centres [m]; None uses :data:`INITIAL_TIPS`.
         """
-        pose = _pose("object_pose", object_pose)
-        tips = INITIAL_TIPS if tips is None else _vector("tips", tips, 9)
-        target = self.target if target_pose is None else _pose("target_pose", target_pose)
+        pose = as_pose("object_pose", object_pose)
+        tips = INITIAL_TIPS if tips is None else as_vector("tips", tips, 9)
+        target = self.target if target_pose is None else as_pose("target_pose", target_pose)
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = np.concatenate([pose, tips])
         self.set_target(target)
         mujoco.mj_forward(self.model, self.data)
         return self.state()
-
-    def set_target(self, target_pose) -> None:
-        """Move the goal marker to ``target_pose (7,)`` (position [m], quaternion)."""
-        pose = _pose("target_pose", target_pose)
-        self.data.mocap_pos[0] = pose[:3]
-        self.data.mocap_quat[0] = pose[3:]
-
-    @property
-    def target(self) -> np.ndarray:
-        """``(7,)`` pose of the goal marker."""
-        return np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
-
-    def state(self) -> np.ndarray:
-        """``(16,)`` copy of q: object position, quaternion (w, x, y, z), tip centres [m]."""
-        return self.data.qpos.copy()
-
-    def velocity(self) -> np.ndarray:
-        """``(15,)`` copy of v [m/s, rad/s]."""
-        return self.data.qvel.copy()
 
     # --- dynamics ------------------------------------------------------------------------
 
@@ -160,7 +130,7 @@ class FingertipsEnv:
         under a constant command settles at ≈ 2u/3 per step (over-damped servo). Returns the
         new :meth:`state`.
         """
-        command = _vector("u", u, self.nu)
+        command = as_vector("u", u, self.nu)
         desired = self.data.qpos[7:] + command
         for _ in range(self.frame_skip):
             error = desired - self.data.qpos[7:]
@@ -170,107 +140,22 @@ class FingertipsEnv:
             mujoco.mj_step(self.model, self.data)
         return self.state()
 
-    def contacts(self, dtype: torch.dtype | None = None) -> Contacts:
-        """Contacts of the object (with tips and ground) at the current state.
-
-        MuJoCo's contacts at touch (no margin), ``contact_slots`` slots, μ = ``contact_mu``;
-        φ is MuJoCo's distance (≤ 0 when touching; the reference model uses φ/2, a model
-        choice left to the caller). More contacts than slots follow ``overflow``.
-        """
-        contacts = self.detector(self.data.qpos)
-        return contacts if dtype is None else contacts.to(dtype)
-
-    # --- rendering -----------------------------------------------------------------------
-
-    def render(self, width: int = 480, height: int = 360, camera: str | int = "overview"):
-        """``(height, width, 3)`` uint8 offscreen image from a named or numbered camera.
-
-        Needs an OpenGL backend (``MUJOCO_GL=egl`` or ``osmesa`` on headless machines).
-        """
-        for name, value in (("width", width), ("height", height)):
-            if not isinstance(value, int) or not 0 < value <= 1920:
-                raise ValueError(f"{name} must be an integer in [1, 1920], got {value!r}")
-        camera_id = camera
-        if isinstance(camera, str):
-            camera_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
-            if camera_id < 0:
-                raise ValueError(f"camera must name a camera of the scene, got {camera!r}")
-        elif not (isinstance(camera, int) and -1 <= camera < self.model.ncam):
-            raise ValueError(f"camera must be a name or an id in [-1, {self.model.ncam})")
-        renderer = self._renderers.get((width, height))
-        if renderer is None:
-            renderer = mujoco.Renderer(self.model, height, width)
-            self._renderers[(width, height)] = renderer
-        renderer.update_scene(self.data, camera_id)
-        return renderer.render()
-
-    def close(self) -> None:
-        """Free the renderers' OpenGL contexts."""
-        for renderer in self._renderers.values():
-            renderer.close()
-        self._renderers.clear()
-
-
-def _resolve_object(obj, object_size, mass: float) -> ObjectMesh:
-    if isinstance(obj, ObjectMesh):
-        return obj
-    if isinstance(obj, str) and obj in OBJECT_SIZES:
-        return make_object(obj, mass=mass)
-    if isinstance(obj, (str, Path)) and Path(obj).suffix:
-        return load_object(obj, object_size, mass=mass)
-    raise ValueError(
-        f"obj must be an object name among {tuple(OBJECT_SIZES)}, a mesh path or an "
-        f"ObjectMesh, got {obj!r}"
-    )
-
 
 def _scene_spec(
     obj: ObjectMesh, object_friction: float, tip_friction: float, ground_friction: float, condim
 ) -> mujoco.MjSpec:
-    """Ground, object (first, so its free joint leads q), goal marker, tips, motors, camera."""
-    spec = mujoco.MjSpec()
-    spec.modelname = f"fingertips_{obj.name}"
-    spec.visual.global_.offwidth = 1920
-    spec.visual.global_.offheight = 1920
-    world = spec.worldbody
-    world.add_light(
-        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-        pos=[0.0, 0.3, 1.0],
-        dir=[0.0, -0.3, -1.0],
-        diffuse=[0.8, 0.8, 0.8],
-        ambient=[0.3, 0.3, 0.3],
-        castshadow=False,  # the translucent goal marker would cast an opaque shadow
-    )
-    world.add_camera(
-        name="overview",
-        pos=[0.0, -0.42, 0.3],
-        mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODY,
-        targetbody="world",
-    )
-    spec.add_texture(
-        name="checker",
-        type=mujoco.mjtTexture.mjTEXTURE_2D,
-        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-        rgb1=[0.55, 0.6, 0.65],
-        rgb2=[0.45, 0.5, 0.55],
-        width=256,
-        height=256,
-    )
-    floor = spec.add_material(name="floor", texrepeat=[20, 20], texuniform=True)
-    floor.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "checker"
-    world.add_geom(
-        name="ground",
-        type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[0.0, 0.0, 0.05],
-        friction=[ground_friction, 0.005, 0.0001],
+    """The shared scene (ground, object, goal marker, camera) plus the tips and their motors."""
+    spec = scene_spec(
+        f"fingertips_{obj.name}",
+        obj,
+        object_friction=object_friction,
+        ground_friction=ground_friction,
         condim=condim,
-        material="floor",
+        camera_position=(0.0, -0.42, 0.3),
     )
-    add_object(spec, obj, OBJECT_BODY, friction=object_friction, condim=condim)
-    add_goal_marker(spec, obj, GOAL_BODY)
     colours = ([0.8, 0.15, 0.15, 1], [0.15, 0.7, 0.15, 1], [0.15, 0.3, 0.85, 1])
     for body_name, rgba in zip(TIP_BODIES, colours, strict=True):
-        tip = world.add_body(name=body_name)
+        tip = spec.worldbody.add_body(name=body_name)
         for axis_name, axis in zip("xyz", np.eye(3), strict=True):
             joint_name = f"{body_name}_{axis_name}"
             tip.add_joint(name=joint_name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis)
@@ -283,28 +168,3 @@ def _scene_spec(
             rgba=rgba,
         )
     return spec
-
-
-def _vector(name: str, value, size: int) -> np.ndarray:
-    """``value`` as a finite float64 ``(size,)`` array (NumPy, list or tensor)."""
-    if isinstance(value, torch.Tensor):
-        value = value.detach().cpu().numpy()
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be {size} numbers, got {value!r}") from None
-    if array.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {array}")
-    return array
-
-
-def _pose(name: str, value) -> np.ndarray:
-    """A ``(7,)`` pose with its quaternion normalised."""
-    pose = _vector(name, value, 7)
-    norm = np.linalg.norm(pose[3:])
-    if norm < 1e-9:
-        raise ValueError(f"{name} must have a non-zero quaternion in its last 4 entries")
-    pose[3:] /= norm
-    return pose

@@ -1,0 +1,138 @@
+"""The evaluation suites: for each environment, its tasks, objects, plant, MPC and sampler.
+
+``torchcontact run ENV`` looks its suite up here by name, so the evaluation loop
+(:mod:`torchcontact.mpc.evaluate`) is written once for the fingertips and both hands.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from torchcontact.mpc import tasks
+from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.sim.objects import object_names
+
+
+@dataclass(frozen=True)
+class Suite:
+    """One environment's experiments.
+
+    Attributes:
+        name: the environment (``torchcontact run NAME``).
+        pairs: the paper's (task, object) pairs.
+        criterion: success criterion of its tasks.
+        stiffness: the paper's K for its MPC.
+        user_meshes: whether ``--object`` may be a mesh file (run on every task).
+        make_env: ``obj ↦`` plant, with contacts beyond the slots truncated to the deepest.
+        make_mpc: ``(obj, stiffness, **options) ↦`` :class:`ContactImplicitMPC`.
+        sample: ``(env, task, obj, seed) ↦`` initial and target poses ``(7,), (7,)``.
+    """
+
+    name: str
+    pairs: tuple[tuple[str, str], ...]
+    criterion: tasks.SuccessCriterion
+    stiffness: float
+    user_meshes: bool
+    make_env: Callable
+    make_mpc: Callable[..., ContactImplicitMPC]
+    sample: Callable[..., tuple[np.ndarray, np.ndarray]]
+
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(task for task, _ in self.pairs))
+
+    @property
+    def objects(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(obj for _, obj in self.pairs))
+
+    def select(self, task: str, obj: str) -> list[tuple[str, str]]:
+        """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; ``obj`` may be a
+        mesh path where :attr:`user_meshes`). Raises ``ValueError`` naming the bad option."""
+        if task not in ("all", *self.tasks):
+            raise ValueError(f"--task must be one of {self.tasks} or 'all', got {task!r}")
+        if self.user_meshes and obj not in self.objects and Path(obj).suffix:
+            if not Path(obj).is_file():
+                raise ValueError(f"--object must be an existing mesh file, got {obj!r}")
+            return [(t, obj) for t in self.tasks if task in ("all", t)]
+        if obj not in ("all", *self.objects):
+            raise ValueError(f"--object must be one of {self.objects} or 'all', got {obj!r}")
+        pairs = [(t, o) for t, o in self.pairs if task in ("all", t) and obj in ("all", o)]
+        if not pairs:
+            raise ValueError(f"the paper has no task {task!r} with object {obj!r}")
+        return pairs
+
+
+def _fingertips_env(obj: str):
+    from torchcontact.sim import FingertipsEnv
+
+    settings = tasks.OBJECT_SETTINGS[obj]
+    return FingertipsEnv(
+        obj,
+        object_friction=settings.object_friction,
+        contact_slots=settings.contact_slots,
+        overflow="deepest",
+    )
+
+
+def _fingertips_mpc(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
+    from torchcontact.mpc.fingertips import fingertips_mpc
+
+    return fingertips_mpc(obj, stiffness=stiffness, **options)
+
+
+def _hand_env(hand: str) -> Callable:
+    def make(obj: str):
+        from torchcontact.sim.hands import HandEnv
+
+        return HandEnv(hand, obj, overflow="deepest")
+
+    return make
+
+
+def _hand_mpc(hand: str) -> Callable[..., ContactImplicitMPC]:
+    def make(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
+        from torchcontact.mpc.hands import hand_mpc
+
+        return hand_mpc(hand, stiffness=stiffness, **options)
+
+    return make
+
+
+SUITES: dict[str, Suite] = {
+    "fingertips": Suite(
+        name="fingertips",
+        pairs=tasks.PAPER_PAIRS,
+        criterion=tasks.FINGERTIPS_SUCCESS,
+        stiffness=1.0,
+        user_meshes=False,
+        make_env=_fingertips_env,
+        make_mpc=_fingertips_mpc,
+        sample=lambda env, task, obj, seed: tasks.sample(task, obj, seed),
+    ),
+    "trifinger": Suite(
+        name="trifinger",
+        pairs=tuple(("in-hand", obj) for obj in object_names()),
+        criterion=tasks.TRIFINGER_SUCCESS,
+        stiffness=0.5,
+        user_meshes=True,
+        make_env=_hand_env("trifinger"),
+        make_mpc=_hand_mpc("trifinger"),
+        sample=lambda env, task, obj, seed: tasks.sample_in_hand(env.resting_pose, seed),
+    ),
+    "allegro": Suite(
+        name="allegro",
+        pairs=tuple(("on-palm", obj) for obj in object_names()),
+        criterion=tasks.ALLEGRO_SUCCESS,
+        stiffness=0.5,
+        user_meshes=True,
+        make_env=_hand_env("allegro"),
+        make_mpc=_hand_mpc("allegro"),
+        sample=lambda env, task, obj, seed: tasks.sample_on_palm(
+            env.resting_pose, env.support_centre, seed
+        ),
+    ),
+}

@@ -1,0 +1,291 @@
+"""Robot-hand plants: TriFinger in-hand and Allegro on-palm manipulation, composed with MjSpec.
+
+A scene is the shared ground, object and goal marker (:func:`~torchcontact.sim.scene.scene_spec`)
+with the robot's MJCF from ``torchcontact.assets`` attached under the prefix ``robot/`` and
+the world frame unchanged, so the fingertip sites of the file are the scene's (and
+:class:`~torchcontact.sim.kinematics.FingertipKinematics` built from the same file agrees with
+them). State ``q = (object position 3, quaternion 4, joints n)``; one :meth:`HandEnv.step`
+holds the joint set point ``q_des = q + u`` for ``frame_skip`` MuJoCo substeps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from torchcontact.assets import asset_path
+from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
+from torchcontact.sim.objects import ObjectMesh
+from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
+from torchcontact.sim.scene import OBJECT_BODY, scene_spec
+
+ROBOT_PREFIX = "robot/"
+"""Prefix of every name the robot's file brings into a scene."""
+
+SERVOS = ("pd", "position")
+
+
+@dataclass(frozen=True)
+class Hand:
+    """A robot hand and the plant settings of its experiments (TASKS.md).
+
+    Attributes:
+        name: ``"trifinger"`` or ``"allegro"``.
+        asset: its MJCF in ``torchcontact.assets``.
+        tips: fingertip site names in that file.
+        initial_joints: joint configuration at the start of every trial [rad].
+        frame_skip: MuJoCo substeps per step.
+        servo: ``"pd"``: the file's motors apply ``τ = kp(q_des − q) − kd q̇ + bias`` every
+            substep (gravity and Coriolis compensated); ``"position"``: the file's position
+            actuators get ``ctrl = q_des`` (their gain and the joints' damping act).
+        kp, kd: PD gains [N·m/rad], [N·m·s/rad] (``"pd"`` only).
+        object_friction, ground_friction: sliding friction of object and ground.
+        support_site: the site an object rests on (the palm centre), None for the ground.
+        ground_height: z of the ground plane [m].
+        camera_position, camera_target: of the ``"overview"`` camera [m].
+        elliptic, impratio: friction cone of the plant (MuJoCo's default pyramidal, 1).
+        object_mass: default object mass [kg]; ``object_overrides`` maps object names to
+            ``(mass [kg], size (x, y, z) [m] or None)`` where an experiment differs.
+    """
+
+    name: str
+    asset: str
+    tips: tuple[str, ...]
+    initial_joints: tuple[float, ...]
+    frame_skip: int
+    servo: str
+    object_friction: float
+    ground_friction: float
+    camera_position: tuple[float, float, float]
+    camera_target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    kp: float = 0.0
+    kd: float = 0.0
+    support_site: str | None = None
+    ground_height: float = 0.0
+    elliptic: bool = False
+    impratio: float = 1.0
+    object_mass: float = 0.01
+    object_overrides: dict[str, tuple[float, tuple[float, float, float] | None]] = field(
+        default_factory=dict
+    )
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.initial_joints)
+
+    @property
+    def mjcf(self) -> Path:
+        """Path of the robot's model file."""
+        return asset_path(self.asset)
+
+
+TRIFINGER = Hand(
+    name="trifinger",
+    asset="trifinger.xml",
+    tips=("tip0", "tip1", "tip2"),
+    initial_joints=(0.0, -0.7, -1.1) * 3,
+    frame_skip=20,
+    servo="pd",
+    kp=10.0,
+    kd=0.05,
+    object_friction=0.5,
+    ground_friction=0.9,
+    camera_position=(0.0, -0.45, 0.45),
+)
+
+ALLEGRO = Hand(
+    name="allegro",
+    asset="allegro_right_hand.xml",
+    tips=("ff_tip", "mf_tip", "rf_tip", "th_tip"),
+    initial_joints=(
+        0.125,
+        1.13,
+        1.45,
+        1.24,
+        -0.02,
+        0.445,
+        1.17,
+        1.5,
+        -0.459,
+        1.54,
+        1.11,
+        1.23,
+        0.638,
+        1.85,
+        1.5,
+        1.26,
+    ),  # fmt: skip
+    frame_skip=50,
+    servo="position",
+    object_friction=0.5,
+    ground_friction=0.5,
+    support_site="palm_center",
+    ground_height=-0.2,
+    camera_position=(0.0, -0.3, 0.3),
+    elliptic=True,
+    impratio=10.0,
+    object_overrides={"cube": (0.1, (0.05, 0.05, 0.05)), "stick": (0.1, None)},
+)
+
+HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
+
+
+def scene_contact_slots(obj: ObjectMesh, n_tips: int) -> int:
+    """Slots a scene needs: up to 4 support contacts per resting part (two parts at most
+    touch a flat support at once) and 2 per fingertip (a tip on a seam touches two parts)."""
+    return 4 * min(len(obj.parts), 2) + 2 * n_tips
+
+
+class HandEnv(Plant):
+    """MuJoCo plant of a robot hand manipulating one object.
+
+    Args:
+        hand: a :class:`Hand` or its name (``"trifinger"``, ``"allegro"``).
+        obj: a built-in object name, a mesh path, or an :class:`ObjectMesh`.
+        object_size: for a mesh path, its largest extent [m] or bounding box (x, y, z) [m].
+        mass: object mass [kg]; None takes the hand's default (and its per-object overrides).
+        condim: contact dimensionality of the scene's own geoms (ground, object).
+        contact_slots: slots nc of :meth:`contacts`; None sizes them from the scene
+            (:func:`scene_contact_slots`).
+        contact_mu: μ written into :meth:`contacts` (the model's 0.5), None for MuJoCo's.
+        overflow: ``"error"`` or ``"deepest"`` when more object contacts exist than slots.
+        timestep: MuJoCo substep [s].
+    """
+
+    def __init__(
+        self,
+        hand: Hand | str,
+        obj: str | Path | ObjectMesh = "cube",
+        *,
+        object_size: float | tuple[float, float, float] = 0.1,
+        mass: float | None = None,
+        condim: int = 6,
+        contact_slots: int | None = None,
+        contact_mu: float | None = 0.5,
+        overflow: str = "error",
+        timestep: float = 0.002,
+    ):
+        super().__init__()
+        if isinstance(hand, str):
+            if hand not in HANDS:
+                raise ValueError(f"hand must be one of {tuple(HANDS)}, got {hand!r}")
+            hand = HANDS[hand]
+        if hand.servo not in SERVOS:
+            raise ValueError(f"hand.servo must be one of {SERVOS}, got {hand.servo!r}")
+        if overflow not in OVERFLOW_POLICIES:
+            raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
+        if not (math.isfinite(timestep) and timestep > 0):
+            raise ValueError(f"timestep must be a positive finite number, got {timestep!r}")
+        self.hand = hand
+        override_mass, size = hand.object_overrides.get(obj, (None, None))
+        if mass is None:
+            mass = override_mass or hand.object_mass
+        self.object = resolve_object(obj, object_size, mass, size)
+        spec = self._scene_spec(condim)
+        spec.option.timestep = timestep
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        if self.model.nu != hand.n_joints:
+            raise ValueError(f"{hand.asset} must have one actuator per joint ({hand.n_joints})")
+        self.tip_sites = np.array(
+            [self.model.site(ROBOT_PREFIX + name).id for name in hand.tips], dtype=int
+        )
+        slots = scene_contact_slots(self.object, len(hand.tips))
+        self.detector = ContactDetector(
+            self.model,
+            [OBJECT_BODY],
+            slots if contact_slots is None else contact_slots,
+            mu=contact_mu,
+            overflow=overflow,
+        )
+        self._joint_dofs = np.arange(6, self.model.nv)
+        self.initial_joints = np.array(hand.initial_joints, dtype=float)
+        mujoco.mj_kinematics(self.model, self.data)
+        self.support_height = (
+            hand.ground_height
+            if hand.support_site is None
+            else float(self.data.site(ROBOT_PREFIX + hand.support_site).xpos[2])
+        )
+        self.support_centre = (
+            np.zeros(2)
+            if hand.support_site is None
+            else self.data.site(ROBOT_PREFIX + hand.support_site).xpos[:2].copy()
+        )
+        resting = self.resting_pose(self.support_centre, [1.0, 0.0, 0.0, 0.0])
+        self.reset(resting, resting)
+
+    def _scene_spec(self, condim: int) -> mujoco.MjSpec:
+        hand = self.hand
+        spec = scene_spec(
+            f"{hand.name}_{self.object.name}",
+            self.object,
+            object_friction=hand.object_friction,
+            ground_friction=hand.ground_friction,
+            condim=condim,
+            camera_position=hand.camera_position,
+            camera_target=hand.camera_target,
+            ground_height=hand.ground_height,
+        )
+        if hand.elliptic:
+            spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        spec.option.impratio = hand.impratio
+        robot = mujoco.MjSpec.from_file(str(hand.mjcf))
+        spec.attach(robot, prefix=ROBOT_PREFIX, frame=spec.worldbody.add_frame())
+        return spec
+
+    # --- state ---------------------------------------------------------------------------
+
+    def resting_pose(self, xy, quat) -> np.ndarray:
+        """``(7,)`` pose at ``xy (2,)`` [m] turned by ``quat (4,)`` that rests on the support
+        (the palm centre's height, or the ground) without penetrating it."""
+        xy = as_vector("xy", xy, 2)
+        quat = as_pose("quat", [0.0, 0.0, 0.0, *as_vector("quat", quat, 4)])[3:]
+        z = self.support_height + self.object.resting_height(quat)
+        return np.concatenate([xy, [z], quat])
+
+    def reset(self, object_pose, target_pose=None, joints=None) -> np.ndarray:
+        """Place the object and the robot at rest and move the goal marker; returns q.
+
+        Args:
+            object_pose: ``(7,)`` position [m] and quaternion (w, x, y, z), normalised here.
+            target_pose: ``(7,)`` pose shown by the goal marker; None keeps the current one.
+            joints: ``(n_joints,)`` [rad]; None uses the hand's initial configuration.
+        """
+        pose = as_pose("object_pose", object_pose)
+        n = self.hand.n_joints
+        joints = self.initial_joints if joints is None else as_vector("joints", joints, n)
+        target = self.target if target_pose is None else as_pose("target_pose", target_pose)
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = np.concatenate([pose, joints])
+        if self.hand.servo == "position":
+            self.data.ctrl[:] = joints
+        self.set_target(target)
+        mujoco.mj_forward(self.model, self.data)
+        return self.state()
+
+    def fingertips(self) -> np.ndarray:
+        """``(n_tips, 3)`` world positions of the fingertip sites [m]."""
+        return self.data.site_xpos[self.tip_sites].copy()
+
+    # --- dynamics ------------------------------------------------------------------------
+
+    def step(self, u) -> np.ndarray:
+        """Command the joints to move by ``u (n_joints,)`` [rad]; simulate ``frame_skip``
+        substeps with the set point ``q_des = q + u`` held; returns the new state."""
+        command = as_vector("u", u, self.hand.n_joints)
+        desired = self.data.qpos[7:] + command
+        if self.hand.servo == "position":
+            self.data.ctrl[:] = desired
+            mujoco.mj_step(self.model, self.data, nstep=self.hand.frame_skip)
+            return self.state()
+        for _ in range(self.hand.frame_skip):
+            error = desired - self.data.qpos[7:]
+            velocity = self.data.qvel[self._joint_dofs]
+            bias = self.data.qfrc_bias[self._joint_dofs]
+            self.data.ctrl[:] = self.hand.kp * error - self.hand.kd * velocity + bias
+            mujoco.mj_step(self.model, self.data)
+        return self.state()
