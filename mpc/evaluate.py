@@ -147,7 +147,7 @@ def plot_results(records: list[dict], path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     groups = sorted({(r["task"], r["object"]) for r in records})
-    labels = [f"{task}\n{obj}" for task, obj in groups]
+    labels = [f"{task}\n{Path(obj).stem}" for task, obj in groups]
     figure, axes = plt.subplots(1, 3, figsize=(4 + 1.6 * len(groups), 3.6))
     rows = [[r for r in records if (r["task"], r["object"]) == g] for g in groups]
     rates = [100 * np.mean([r["success"] for r in rs]) for rs in rows]

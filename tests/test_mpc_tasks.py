@@ -142,3 +142,39 @@ def test_every_paper_pair_is_supported():
     assert len(PAPER_PAIRS) == 9
     for task, obj in PAPER_PAIRS:
         assert OBJECT_SETTINGS[obj].supports(task)
+
+
+def _flat_rest(xy, quat):
+    return np.concatenate([xy, [0.03], quat])
+
+
+def test_in_hand_samples_lie_in_the_papers_ranges_and_repeat():
+    for seed in range(50):
+        initial, target = tasks.sample_in_hand(_flat_rest, seed)
+        for pose in (initial, target):
+            assert np.all(np.abs(pose[:2]) <= tasks.IN_HAND_XY_RANGE)
+            yaw = 2 * np.arctan2(pose[6], pose[3])
+            assert abs(yaw) <= np.pi / 2 + 1e-12 and np.allclose(pose[4:6], 0)
+    again = tasks.sample_in_hand(_flat_rest, 7)
+    np.testing.assert_array_equal(again[0], tasks.sample_in_hand(_flat_rest, 7)[0])
+
+
+def test_on_palm_targets_turn_a_quarter_either_way():
+    centre = np.array([-0.03, -0.01])
+    turns = []
+    for seed in range(40):
+        initial, target = tasks.sample_on_palm(_flat_rest, centre, seed)
+        assert np.linalg.norm(initial[:2] - centre) < 0.03
+        np.testing.assert_allclose(target[:2], centre)
+        angle = tasks.angle_error(initial[3:], target[3:])
+        np.testing.assert_allclose(angle, 90.0, atol=1e-9)
+        turns.append(np.sign(target[6] * initial[3] - target[3] * initial[6]))
+    assert set(turns) == {-1.0, 1.0}
+
+
+def test_hand_criteria():
+    assert tasks.TRIFINGER_SUCCESS.quaternion_tolerance == 0.04
+    tracker = tasks.SuccessTracker([0, 0, 0, 1, 0, 0, 0], tasks.ALLEGRO_SUCCESS)
+    assert tracker.within_tolerance(np.array([0.5, 0.5, 0.5, 1, 0, 0, 0]))  # orientation only
+    with pytest.raises(ValueError, match="seed"):
+        tasks.sample_in_hand(_flat_rest, -1)

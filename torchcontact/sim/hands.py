@@ -240,8 +240,10 @@ class HandEnv(Plant):
     # --- state ---------------------------------------------------------------------------
 
     def resting_pose(self, xy, quat) -> np.ndarray:
-        """``(7,)`` pose at ``xy (2,)`` [m] turned by ``quat (4,)`` that rests on the support
-        (the palm centre's height, or the ground) without penetrating it."""
+        """``(7,)`` pose at ``xy (2,)`` [m] turned by ``quat (4,)`` whose lowest point is at the
+        support's height (the palm centre, or the ground). On the Allegro, finger bases and
+        curled fingers may overlap a large object there, as in the paper's setup; the
+        simulation pushes them apart in its first substeps."""
         xy = as_vector("xy", xy, 2)
         quat = as_pose("quat", [0.0, 0.0, 0.0, *as_vector("quat", quat, 4)])[3:]
         z = self.support_height + self.object.resting_height(quat)

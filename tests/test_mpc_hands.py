@@ -1,0 +1,82 @@
+"""Hand MPC: the paper's settings, a plan inside the box, and `run trifinger|allegro` smoke runs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from torchcontact.cli import main
+from torchcontact.mpc.evaluate import SUMMARY_KEYS
+from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
+from torchcontact.sim.hands import HANDS, HandEnv
+
+FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
+
+
+@pytest.mark.parametrize("hand", sorted(HANDS))
+def test_a_plan_stays_in_its_box_and_lowers_the_cost(hand):
+    env = HandEnv(hand, "cube")
+    mpc = hand_mpc(hand, max_iter=10)
+    q = torch.as_tensor(env.state())
+    target = env.resting_pose(env.support_centre, [0.0, 0.0, 0.0, 1.0])
+    tp, tq = torch.as_tensor(target[:3]), torch.as_tensor(target[3:])
+    contacts = env.contacts(mpc.dtype)
+    plan = mpc.plan(q, contacts, tp, tq)
+    bound = MPC_SETTINGS[hand].control_bound
+    assert plan.controls.shape == (4, HANDS[hand].n_joints)
+    assert float(plan.controls.abs().max()) <= bound + 1e-12
+    with torch.no_grad():
+        jac, phi, _ = contacts.dual_rows(4)
+        K, D = mpc.model.coefficients(contacts, q)
+        args = (q, jac, phi, K.expand(phi.shape), D.expand(phi.shape), tp, tq)
+        idle = mpc.objective(torch.zeros_like(plan.controls), *args)
+        planned = mpc.objective(plan.controls, *args)
+    assert float(planned) < float(idle)
+
+
+def test_the_mpc_fingertips_are_the_plants_sites():
+    env = HandEnv("allegro", "cube")
+    mpc = hand_mpc("allegro")
+    tips = mpc.fingertips(torch.as_tensor(env.state()))
+    np.testing.assert_allclose(tips.numpy(), env.fingertips(), atol=1e-6)
+
+
+@pytest.mark.parametrize("hand", sorted(HANDS))
+def test_two_objects_two_short_trials(hand, tmp_path):
+    for obj in ("cube", "torus"):
+        summary = tmp_path / f"{obj}.json"
+        out = tmp_path / obj
+        assert (
+            main(["run", hand, "--object", obj, *FAST, "--out", str(out), "--json", str(summary)])
+            == 0
+        )
+        result = json.loads(summary.read_text())
+        assert set(SUMMARY_KEYS) <= set(result) and result["trials"] == 2
+        records = sorted((out / "trials").glob("*.json"))
+        assert len(records) == 2
+        record = json.loads(records[0].read_text())
+        assert record["steps"] == 4 and record["contact_slots"] >= 1
+        assert 0 <= record["contacts_found_max"]
+
+
+def test_a_user_mesh_runs_on_a_hand(tmp_path):
+    path = tmp_path / "wedge.stl"
+    trimesh.creation.box([0.06, 0.04, 0.03]).export(path)
+    out = tmp_path / "out"
+    args = ["run", "trifinger", "--object", str(path), *FAST, "--trials", "1", "--out", str(out)]
+    assert main(args) == 0
+    assert (out / "trials" / "trifinger_in-hand_wedge_seed0.json").exists()
+
+
+@pytest.mark.parametrize(
+    "bad", [["--object", "spoon"], ["--object", "missing.stl"], ["--workers", "0"]]
+)
+def test_bad_options_are_refused(bad, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["run", "allegro", *bad, "--out", str(tmp_path)])
+    assert exit_info.value.code not in (0, None)
+    assert bad[0] in capsys.readouterr().err

@@ -1,0 +1,120 @@
+"""Robot-hand plants: scenes for every object, resting poses, servos, contacts, FK agreement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from torchcontact.sim.hands import ALLEGRO, HANDS, TRIFINGER, HandEnv, scene_contact_slots
+from torchcontact.sim.kinematics import FingertipKinematics
+from torchcontact.sim.objects import object_names
+
+
+@pytest.fixture(scope="module", params=sorted(HANDS))
+def cube_env(request):
+    env = HandEnv(request.param, "cube")
+    yield env
+    env.close()
+
+
+@pytest.mark.parametrize("hand", sorted(HANDS))
+@pytest.mark.parametrize("name", object_names())
+def test_every_object_builds_and_rests_on_its_support(hand, name):
+    env = HandEnv(hand, name, overflow="deepest")
+    n = HANDS[hand].n_joints
+    assert env.nq == 7 + n and env.nv == 6 + n and env.nu == n
+    assert env.detector.slots == scene_contact_slots(env.object, len(HANDS[hand].tips))
+    pose = env.resting_pose(env.support_centre, [1.0, 0.0, 0.0, 0.0])
+    env.reset(pose)
+    assert pose[2] == pytest.approx(env.support_height + env.object.resting_height())
+    if hand == "trifinger":  # on the ground, touching it without penetrating
+        env.model.geom_margin[:] = 1e-3  # see touching contacts whose distance is +0.0
+        env.reset(pose)
+        ground = env.model.geom("ground").id
+        contacts = [env.data.contact[i] for i in range(env.data.ncon)]
+        on_ground = [c.dist for c in contacts if ground in (c.geom1, c.geom2)]
+        assert on_ground and abs(min(on_ground)) < 1e-6
+    for _ in range(5):
+        env.step(np.zeros(n))
+    assert env.state()[2] > env.support_height, "the object stays on its support"
+    active = int(env.contacts().active.sum())
+    assert active == min(env.detector.found, env.detector.slots)
+
+
+def test_allegro_objects_use_the_papers_heavier_cube_and_stick():
+    cube = HandEnv("allegro", "cube")
+    np.testing.assert_allclose(cube.object.size, [0.05] * 3, rtol=1e-6)
+    assert cube.object.mass == 0.1 and HandEnv("allegro", "stick").object.mass == 0.1
+    assert HandEnv("allegro", "bunny").object.mass == 0.01
+    assert HandEnv("trifinger", "cube").object.mass == 0.01
+
+
+def test_state_layout_reset_and_target(cube_env):
+    hand = cube_env.hand
+    pose = cube_env.resting_pose(cube_env.support_centre + 0.005, [0.0, 0.0, 0.0, 1.0])
+    target = cube_env.resting_pose(cube_env.support_centre, [1.0, 0.0, 0.0, 0.0])
+    state = cube_env.reset(pose, target)
+    np.testing.assert_array_equal(state[:7], pose)
+    np.testing.assert_array_equal(state[7:], hand.initial_joints)
+    np.testing.assert_allclose(cube_env.target, target)
+    with pytest.raises(ValueError, match="joints"):
+        cube_env.reset(pose, joints=np.zeros(3))
+
+
+def test_fingertip_sites_match_pytorch_kinematics_in_the_scene(cube_env):
+    hand = cube_env.hand
+    fk = FingertipKinematics(hand.mjcf, hand.tips)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        joints = np.array(hand.initial_joints) + rng.uniform(-0.2, 0.2, hand.n_joints)
+        cube_env.reset(cube_env.state()[:7], joints=joints)
+        tips = fk(torch.as_tensor(joints)).numpy()
+        np.testing.assert_allclose(tips, cube_env.fingertips(), atol=1e-6)
+
+
+def test_the_servo_moves_free_joints_toward_the_command(cube_env):
+    far = cube_env.resting_pose(cube_env.support_centre + 1.0, [1.0, 0.0, 0.0, 0.0])
+    start = cube_env.reset(far)  # object out of reach: the hand moves freely
+    command = np.zeros(cube_env.nu)
+    command[1] = -0.05
+    state = cube_env.step(command)
+    moved = state[7:] - start[7:]
+    assert moved[1] < -0.01, "the commanded joint moves the commanded way"
+    others = np.delete(moved, 1)
+    assert np.abs(others).max() < 0.5 * abs(moved[1])
+
+
+def test_contacts_keep_only_the_object_pairs(cube_env):
+    cube_env.reset(cube_env.resting_pose(cube_env.support_centre, [1.0, 0.0, 0.0, 0.0]))
+    cube_env.data.qpos[7:] = 0.0  # a configuration where links may touch each other
+    contacts = cube_env.contacts()
+    assert contacts.phi.shape == (cube_env.detector.slots,)
+    assert cube_env.detector.found == int(contacts.active.sum())
+    assert cube_env.detector.found >= 1
+
+
+def test_a_user_mesh_is_scaled_and_placed(tmp_path):
+    path = tmp_path / "box.stl"
+    trimesh.creation.box([2.0, 1.0, 0.5]).export(path)
+    env = HandEnv("trifinger", path, object_size=0.08)
+    np.testing.assert_allclose(env.object.size, [0.08, 0.04, 0.02], rtol=1e-6)
+    assert env.object.name == "box"
+
+
+def test_bad_arguments_are_named():
+    with pytest.raises(ValueError, match="hand"):
+        HandEnv("shadow", "cube")
+    with pytest.raises(ValueError, match="overflow"):
+        HandEnv(TRIFINGER, "cube", overflow="drop")
+    with pytest.raises(ValueError, match="obj"):
+        HandEnv(ALLEGRO, "spoon")
+    env = HandEnv(TRIFINGER, "cube")
+    with pytest.raises(ValueError, match="u must have shape"):
+        env.step(np.zeros(4))
+
+
+def test_render_shows_the_scene(cube_env):
+    image = cube_env.render(64, 48)
+    assert image.shape == (48, 64, 3) and image.std() > 1.0
