@@ -115,6 +115,10 @@ def test_bad_arguments_are_named():
         env.step(np.zeros(4))
 
 
-def test_render_shows_the_scene(cube_env):
-    image = cube_env.render(64, 48)
+def test_render_shows_the_scene():
+    env = HandEnv("trifinger", "cube")
+    try:
+        image = env.render(64, 48)
+    finally:
+        env.close()
     assert image.shape == (48, 64, 3) and image.std() > 1.0
