@@ -7,7 +7,14 @@ import pytest
 import torch
 import trimesh
 
-from torchcontact.sim.hands import ALLEGRO, HANDS, TRIFINGER, HandEnv, scene_contact_slots
+from torchcontact.sim.hands import (
+    ALLEGRO,
+    CONTACTS_PER_TIP,
+    HANDS,
+    TRIFINGER,
+    HandEnv,
+    scene_contact_slots,
+)
 from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import object_names
 
@@ -25,8 +32,13 @@ def test_every_object_builds_and_rests_on_its_support(hand, name):
     env = HandEnv(hand, name, overflow="deepest")
     n = HANDS[hand].n_joints
     assert env.nq == 7 + n and env.nv == 6 + n and env.nu == n
-    assert env.detector.slots == scene_contact_slots(env.object, len(HANDS[hand].tips))
     pose = env.resting_pose(env.support_centre, [1.0, 0.0, 0.0, 0.0])
+    tips = len(HANDS[hand].tips)
+    qpos = np.concatenate([pose, HANDS[hand].initial_joints])
+    assert env.detector.slots == scene_contact_slots(env.model, qpos, tips)
+    env.reset(pose)
+    env.contacts()
+    assert env.detector.found + CONTACTS_PER_TIP * tips <= env.detector.slots  # room for tips
     env.reset(pose)
     assert pose[2] == pytest.approx(env.support_height + env.object.resting_height())
     if hand == "trifinger":  # on the ground, touching it without penetrating

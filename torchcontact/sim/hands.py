@@ -134,10 +134,19 @@ ALLEGRO = Hand(
 HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
 
 
-def scene_contact_slots(obj: ObjectMesh, n_tips: int) -> int:
-    """Slots a scene needs: up to 4 support contacts per resting part (two parts at most
-    touch a flat support at once) and 2 per fingertip (a tip on a seam touches two parts)."""
-    return 4 * min(len(obj.parts), 2) + 2 * n_tips
+CONTACTS_PER_TIP = 2
+"""Slots kept per fingertip beyond the resting contacts (a tip on a seam touches two parts)."""
+
+
+def scene_contact_slots(model: mujoco.MjModel, resting_qpos: np.ndarray, n_tips: int) -> int:
+    """Slots a scene needs: the object's contacts when it rests at ``resting_qpos (nq,)``,
+    within 1 mm (a cup's ring of wall parts touches the ground in dozens of points), at
+    least 4, plus
+    :data:`CONTACTS_PER_TIP` per fingertip, so resting contacts never crowd out the tips."""
+    # 1 mm of margin also counts parts that touch once the object settles into the support
+    probe = ContactDetector(model, [OBJECT_BODY], 0, margin=1e-3, overflow="deepest")
+    probe(resting_qpos)
+    return max(probe.found, 4) + CONTACTS_PER_TIP * n_tips
 
 
 class HandEnv(Plant):
@@ -194,14 +203,6 @@ class HandEnv(Plant):
         self.tip_sites = np.array(
             [self.model.site(ROBOT_PREFIX + name).id for name in hand.tips], dtype=int
         )
-        slots = scene_contact_slots(self.object, len(hand.tips))
-        self.detector = ContactDetector(
-            self.model,
-            [OBJECT_BODY],
-            slots if contact_slots is None else contact_slots,
-            mu=contact_mu,
-            overflow=overflow,
-        )
         self._joint_dofs = np.arange(6, self.model.nv)
         self.initial_joints = np.array(hand.initial_joints, dtype=float)
         mujoco.mj_kinematics(self.model, self.data)
@@ -216,6 +217,12 @@ class HandEnv(Plant):
             else self.data.site(ROBOT_PREFIX + hand.support_site).xpos[:2].copy()
         )
         resting = self.resting_pose(self.support_centre, [1.0, 0.0, 0.0, 0.0])
+        if contact_slots is None:
+            qpos = np.concatenate([resting, self.initial_joints])
+            contact_slots = scene_contact_slots(self.model, qpos, len(hand.tips))
+        self.detector = ContactDetector(
+            self.model, [OBJECT_BODY], contact_slots, mu=contact_mu, overflow=overflow
+        )
         self.reset(resting, resting)
 
     def _scene_spec(self, condim: int) -> mujoco.MjSpec:
