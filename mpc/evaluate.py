@@ -258,6 +258,9 @@ def _run_job(job: Job) -> dict:
     if _CACHE.get("key") != key:
         suite = SUITES[c.env]
         _CACHE.clear()
+        # A new object brings new tensor shapes: drop the previous compiled graphs, or dynamo
+        # reaches its recompile limit after a few objects and silently runs eager from then on.
+        torch._dynamo.reset()
         _CACHE.update(
             key=key,
             env=suite.make_env(c.object),
