@@ -19,11 +19,22 @@ from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import ComplementarityFree
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.optim import lbfgs_box
+from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 from torchcontact.validation import check_shape, validate_args
 
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
+
+
+def paper_model(stiffness: float) -> ComplementarityFree:
+    """The paper's MPC contact model: constant K = ``stiffness``, D = 0.1·K, γ = 100, n_d = 4."""
+    return ComplementarityFree(
+        stiffness=Constant(stiffness, learnable=False),
+        damping=Relative(0.1, learnable=False),
+        gamma=100.0,
+        facets=4,
+    )
 
 
 @dataclass(frozen=True)

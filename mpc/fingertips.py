@@ -5,11 +5,9 @@ from __future__ import annotations
 import torch
 
 from torchcontact.integrate import JointLayout
-from torchcontact.model import ComplementarityFree
-from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.controller import ContactImplicitMPC, paper_model
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.tasks import OBJECT_SETTINGS
-from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 
 OBJECT_MASS = 0.01  # [kg], the model's Mₒ in b = m·g
@@ -39,15 +37,9 @@ def fingertips_mpc(obj: str, stiffness: float = STIFFNESS, **options) -> Contact
         object_force=[0.0, 0.0, -OBJECT_MASS * GRAVITY, 0.0, 0.0, 0.0],
         n_robot=9,
     )
-    model = ComplementarityFree(
-        stiffness=Constant(stiffness, learnable=False),
-        damping=Relative(0.1, learnable=False),
-        gamma=100.0,
-        facets=4,
-    )
     return ContactImplicitMPC(
         system,
-        model,
+        paper_model(stiffness),
         LAYOUT,
         fingertip_positions,
         ManipulationCost(),

@@ -7,12 +7,10 @@ from dataclasses import dataclass
 import torch
 
 from torchcontact.integrate import JointLayout
-from torchcontact.model import ComplementarityFree
-from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.controller import ContactImplicitMPC, paper_model
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.sim.hands import HANDS, Hand
 from torchcontact.sim.kinematics import FingertipKinematics
-from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 
 GRAVITY = 9.8  # [m/s²]
@@ -88,15 +86,9 @@ def hand_mpc(
         object_force=[0.0, 0.0, -settings.object_mass * GRAVITY, 0.0, 0.0, 0.0],
         n_robot=n,
     )
-    model = ComplementarityFree(
-        stiffness=Constant(settings.stiffness if stiffness is None else stiffness, learnable=False),
-        damping=Relative(0.1, learnable=False),
-        gamma=100.0,
-        facets=4,
-    )
     return ContactImplicitMPC(
         system,
-        model,
+        paper_model(settings.stiffness if stiffness is None else stiffness),
         JointLayout(["free"] + ["hinge"] * n),
         JointFingertips(hand, dtype),
         settings.cost,

@@ -14,6 +14,10 @@ import numpy as np
 
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
+from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
+from torchcontact.sim.fingertips import FingertipsEnv
+from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.objects import object_names
 
 
@@ -66,9 +70,7 @@ class Suite:
         return pairs
 
 
-def _fingertips_env(obj: str):
-    from torchcontact.sim import FingertipsEnv
-
+def _fingertips_env(obj: str) -> FingertipsEnv:
     settings = tasks.OBJECT_SETTINGS[obj]
     return FingertipsEnv(
         obj,
@@ -78,28 +80,22 @@ def _fingertips_env(obj: str):
     )
 
 
-def _fingertips_mpc(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
-    from torchcontact.mpc.fingertips import fingertips_mpc
+def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample) -> Suite:
+    """The suite of ``hand``: its one ``task`` on each of the 17 objects or a user mesh."""
 
-    return fingertips_mpc(obj, stiffness=stiffness, **options)
-
-
-def _hand_env(hand: str) -> Callable:
-    def make(obj: str):
-        from torchcontact.sim.hands import HandEnv
-
-        return HandEnv(hand, obj, overflow="deepest")
-
-    return make
-
-
-def _hand_mpc(hand: str) -> Callable[..., ContactImplicitMPC]:
-    def make(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
-        from torchcontact.mpc.hands import hand_mpc
-
+    def make_mpc(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
         return hand_mpc(hand, stiffness=stiffness, **options)
 
-    return make
+    return Suite(
+        name=hand,
+        pairs=tuple((task, obj) for obj in object_names()),
+        criterion=criterion,
+        stiffness=MPC_SETTINGS[hand].stiffness,
+        user_meshes=True,
+        make_env=lambda obj: HandEnv(hand, obj, overflow="deepest"),
+        make_mpc=make_mpc,
+        sample=sample,
+    )
 
 
 SUITES: dict[str, Suite] = {
@@ -107,31 +103,23 @@ SUITES: dict[str, Suite] = {
         name="fingertips",
         pairs=tasks.PAPER_PAIRS,
         criterion=tasks.FINGERTIPS_SUCCESS,
-        stiffness=1.0,
+        stiffness=STIFFNESS,
         user_meshes=False,
         make_env=_fingertips_env,
-        make_mpc=_fingertips_mpc,
+        make_mpc=fingertips_mpc,
         sample=lambda env, task, obj, seed: tasks.sample(task, obj, seed),
     ),
-    "trifinger": Suite(
-        name="trifinger",
-        pairs=tuple(("in-hand", obj) for obj in object_names()),
-        criterion=tasks.TRIFINGER_SUCCESS,
-        stiffness=0.5,
-        user_meshes=True,
-        make_env=_hand_env("trifinger"),
-        make_mpc=_hand_mpc("trifinger"),
-        sample=lambda env, task, obj, seed: tasks.sample_in_hand(env.resting_pose, seed),
+    "trifinger": _hand_suite(
+        "trifinger",
+        "in-hand",
+        tasks.TRIFINGER_SUCCESS,
+        lambda env, task, obj, seed: tasks.sample_in_hand(env.resting_pose, seed),
     ),
-    "allegro": Suite(
-        name="allegro",
-        pairs=tuple(("on-palm", obj) for obj in object_names()),
-        criterion=tasks.ALLEGRO_SUCCESS,
-        stiffness=0.5,
-        user_meshes=True,
-        make_env=_hand_env("allegro"),
-        make_mpc=_hand_mpc("allegro"),
-        sample=lambda env, task, obj, seed: tasks.sample_on_palm(
+    "allegro": _hand_suite(
+        "allegro",
+        "on-palm",
+        tasks.ALLEGRO_SUCCESS,
+        lambda env, task, obj, seed: tasks.sample_on_palm(
             env.resting_pose, env.support_centre, seed
         ),
     ),

@@ -206,16 +206,12 @@ class HandEnv(Plant):
         self._joint_dofs = np.arange(6, self.model.nv)
         self.initial_joints = np.array(hand.initial_joints, dtype=float)
         mujoco.mj_kinematics(self.model, self.data)
-        self.support_height = (
-            hand.ground_height
+        support = (
+            np.array([0.0, 0.0, hand.ground_height])
             if hand.support_site is None
-            else float(self.data.site(ROBOT_PREFIX + hand.support_site).xpos[2])
+            else self.data.site(ROBOT_PREFIX + hand.support_site).xpos.copy()
         )
-        self.support_centre = (
-            np.zeros(2)
-            if hand.support_site is None
-            else self.data.site(ROBOT_PREFIX + hand.support_site).xpos[:2].copy()
-        )
+        self.support_centre, self.support_height = support[:2], float(support[2])
         resting = self.resting_pose(self.support_centre, [1.0, 0.0, 0.0, 0.0])
         if contact_slots is None:
             qpos = np.concatenate([resting, self.initial_joints])
