@@ -355,6 +355,40 @@ def test_overflow_error_and_deepest():
     torch.testing.assert_close(torch.sort(deepest.phi).values, smallest)
 
 
+def _ring_on_floor():
+    """A ring of 12 small boxes (one body, like a convex-decomposed cup) resting on the floor."""
+    spec = _spec()
+    ring = spec.worldbody.add_body(name="object", pos=[0, 0, 0.01])
+    ring.add_freejoint()
+    for k in range(12):
+        angle = 2 * np.pi * k / 12
+        ring.add_geom(
+            type=BOX, size=[0.008, 0.008, 0.01], pos=[0.05 * np.cos(angle), 0.05 * np.sin(angle), 0]
+        )
+    model = spec.compile()
+    q = np.zeros(model.nq)
+    q[2], q[3] = 0.0099, 1.0  # 0.1 mm into the floor
+    return model, q
+
+
+def test_per_pair_keeps_a_spanning_subset_of_each_pair():
+    model, q = _ring_on_floor()
+    every = ContactDetector(model, ["object"], slots=64, dtype=torch.float64)
+    full = every(q)
+    n = int(full.n_active())
+    assert n == every.found >= 12 * 4  # each box touches with its four corners
+    reducing = ContactDetector(model, ["object"], slots=8, per_pair=4, dtype=torch.float64)
+    reduced = reducing(q)
+    assert reducing.found == 4 and int(reduced.n_active()) == 4
+    kept = reduced.position[reduced.active][:, :2].numpy()
+    points = full.position[full.active][:, :2].numpy()
+    # every kept row is one of the found contacts, and the four span the ring
+    assert all(np.isclose(points, p).all(axis=1).any() for p in kept)
+    assert np.linalg.norm(kept - kept.mean(axis=0), axis=1).min() > 0.04
+    # a pair with fewer contacts than per_pair keeps them all
+    assert ContactDetector(model, ["object"], slots=64, per_pair=n)(q).n_active() == n
+
+
 def test_batched_qpos_equals_per_element_calls():
     model, bodies, detector, states, _ = _states("box_ball", count=6, seed=3)
     batch = np.stack(states).reshape(2, 3, model.nq)
@@ -425,6 +459,8 @@ def test_dtype_and_device_of_outputs():
         ({"margin": -0.01}, "margin"),
         ({"margin": float("inf")}, "margin"),
         ({"overflow": "drop"}, "overflow"),
+        ({"per_pair": 0}, "per_pair"),
+        ({"per_pair": 2.5}, "per_pair"),
         ({"bodies": []}, "bodies"),
         ({"bodies": ["nope"]}, "nope"),
         ({"bodies": [99]}, "body id"),

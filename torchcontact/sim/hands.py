@@ -137,14 +137,19 @@ HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
 CONTACTS_PER_TIP = 2
 """Slots kept per fingertip beyond the resting contacts (a tip on a seam touches two parts)."""
 
+CONTACTS_PER_PAIR = 4
+"""Contacts kept per pair of bodies, spanning the patch (see :class:`ContactDetector`'s
+``per_pair``): a decomposed cup on the ground keeps 4 of its ~36 contacts."""
+
 
 def scene_contact_slots(model: mujoco.MjModel, resting_qpos: np.ndarray, n_tips: int) -> int:
     """Slots a scene needs: the object's contacts when it rests at ``resting_qpos (nq,)``,
-    within 1 mm (a cup's ring of wall parts touches the ground in dozens of points), at
-    least 4, plus
+    within 1 mm and at most :data:`CONTACTS_PER_PAIR` per body pair, at least 4, plus
     :data:`CONTACTS_PER_TIP` per fingertip, so resting contacts never crowd out the tips."""
     # 1 mm of margin also counts parts that touch once the object settles into the support
-    probe = ContactDetector(model, [OBJECT_BODY], 0, margin=1e-3, overflow="deepest")
+    probe = ContactDetector(
+        model, [OBJECT_BODY], 0, margin=1e-3, overflow="deepest", per_pair=CONTACTS_PER_PAIR
+    )
     probe(resting_qpos)
     return max(probe.found, 4) + CONTACTS_PER_TIP * n_tips
 
@@ -217,7 +222,12 @@ class HandEnv(Plant):
             qpos = np.concatenate([resting, self.initial_joints])
             contact_slots = scene_contact_slots(self.model, qpos, len(hand.tips))
         self.detector = ContactDetector(
-            self.model, [OBJECT_BODY], contact_slots, mu=contact_mu, overflow=overflow
+            self.model,
+            [OBJECT_BODY],
+            contact_slots,
+            mu=contact_mu,
+            overflow=overflow,
+            per_pair=CONTACTS_PER_PAIR,
         )
         self.reset(resting, resting)
 
