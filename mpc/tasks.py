@@ -172,6 +172,12 @@ IN_HAND_XY_RANGE = 0.05
 ON_PALM_XY_STD = 0.005
 """Allegro initial x, y ~ palm centre + N(0, 0.005²) [m]; yaw ~ U[−π/2, π/2]."""
 
+ON_PALM_YAW_RANGE = (-math.pi / 2, math.pi / 2)
+"""Allegro initial yaw range [rad]."""
+
+ON_PALM_OBJECT_YAW_RANGES = {"stick": (math.pi / 4, 3 * math.pi / 4)}
+"""Per-object exceptions of the paper's code: the 13 cm stick starts across the palm."""
+
 
 # --- rotations ---------------------------------------------------------------------------
 
@@ -288,16 +294,22 @@ def sample_in_hand(resting_pose: RestingPose, seed: int) -> tuple[np.ndarray, np
     return initial, target
 
 
-def sample_on_palm(resting_pose: RestingPose, centre, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def sample_on_palm(
+    resting_pose: RestingPose, centre, seed: int, yaw_range: tuple[float, float] = ON_PALM_YAW_RANGE
+) -> tuple[np.ndarray, np.ndarray]:
     """Allegro on-palm trial ``seed``: initial and target poses ``(7,), (7,)``.
 
     Draws from ``np.random.default_rng(seed)``: initial x, y ~ ``centre (2,)`` + N(0,
-    0.005²), yaw ~ U[−π/2, π/2], then the turn direction s = ±1 (fair coin); the target rests at
-    the palm centre with yaw = initial yaw + s·π/2.
+    0.005²), yaw ~ U[``yaw_range``] [rad] (the paper's U[−π/2, π/2]; its code starts the stick
+    in U[π/4, 3π/4], see :data:`ON_PALM_OBJECT_YAW_RANGES`), then the turn direction s = ±1
+    (fair coin); the target rests at the palm centre with yaw = initial yaw + s·π/2.
     """
+    low, high = yaw_range
+    if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+        raise ValueError(f"yaw_range must be finite (low, high) with low <= high, got {yaw_range}")
     rng = np.random.default_rng(_seed(seed))
     centre = np.asarray(centre, dtype=float)
-    yaw = rng.uniform(-np.pi / 2, np.pi / 2)
+    yaw = rng.uniform(low, high)
     initial = resting_pose(
         centre + ON_PALM_XY_STD * rng.standard_normal(2), quat_from_yaw_pitch_roll(yaw)
     )

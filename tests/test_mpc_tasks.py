@@ -172,6 +172,17 @@ def test_on_palm_targets_turn_a_quarter_either_way():
     assert set(turns) == {-1.0, 1.0}
 
 
+def test_on_palm_yaw_range_and_the_sticks_exception():
+    low, high = tasks.ON_PALM_OBJECT_YAW_RANGES["stick"]
+    assert (low, high) == (np.pi / 4, 3 * np.pi / 4)
+    for seed in range(20):
+        initial, _ = tasks.sample_on_palm(_flat_rest, np.zeros(2), seed, (low, high))
+        yaw = 2 * np.arctan2(initial[6], initial[3])
+        assert low <= yaw <= high
+    with pytest.raises(ValueError, match="yaw_range"):
+        tasks.sample_on_palm(_flat_rest, np.zeros(2), 0, (1.0, 0.0))
+
+
 def test_hand_criteria():
     assert tasks.TRIFINGER_SUCCESS.quaternion_tolerance == 0.04
     tracker = tasks.SuccessTracker([0, 0, 0, 1, 0, 0, 0], tasks.ALLEGRO_SUCCESS)
