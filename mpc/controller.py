@@ -3,6 +3,11 @@
 At each real state: detect contacts once and freeze J̃ and φ̃ over the horizon; roll the model
 out for T steps; minimize Σₜ c(qₜ, uₜ) + V(q_T) over u₀…u_{T−1} in their box with projected
 L-BFGS (gradients by autograd); apply u₀; warm-start the next solve from the shifted plan.
+
+The same controller plans through the complementarity-based baseline, the Anitescu QP with
+relaxed complementarity (:class:`RelaxedQP`, the paper's "implicit MPC"), chosen by name with
+:func:`mpc_model`: only the step's velocity changes, the cost, box, optimizer and warm start are
+the same.
 """
 
 from __future__ import annotations
@@ -16,15 +21,25 @@ import torch
 from torchcontact.contacts import Contacts
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import JointLayout, integrate
-from torchcontact.model import ComplementarityFree
+from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.optim import lbfgs_box
+from torchcontact.relaxed_qp import (
+    RELAXATION,
+    RelaxedQPSolution,
+    relaxed_qp_solve,
+    relaxed_qp_velocity,
+)
 from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 from torchcontact.validation import check_shape, validate_args
 
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
+
+
+MPC_MODELS = ("complementarity_free", "qp")
+"""Contact models the MPC plans through, by name; ``"qp"`` is the relaxed, differentiable QP."""
 
 
 def paper_model(stiffness: float) -> ComplementarityFree:
@@ -35,6 +50,24 @@ def paper_model(stiffness: float) -> ComplementarityFree:
         gamma=100.0,
         facets=4,
     )
+
+
+def mpc_model(
+    name: str, stiffness: float | None = None, relaxation: float | None = None
+) -> ComplementarityFree | RelaxedQP:
+    """The MPC's contact model by name (one of :data:`MPC_MODELS`), n_d = 4.
+
+    ``"complementarity_free"``: :func:`paper_model` with K = ``stiffness``.
+    ``"qp"``: the Anitescu QP with complementarity relaxed to κ = ``relaxation`` [N·m]
+    (default the paper's :data:`~torchcontact.relaxed_qp.RELAXATION`).
+    """
+    if name == "complementarity_free":
+        if stiffness is None:
+            raise ValueError("stiffness is required by the complementarity-free model")
+        return paper_model(stiffness)
+    if name == "qp":
+        return RelaxedQP(RELAXATION if relaxation is None else relaxation, facets=4)
+    raise ValueError(f"model must be one of {MPC_MODELS}, got {name!r}")
 
 
 @dataclass(frozen=True)
@@ -54,7 +87,8 @@ class ContactImplicitMPC:
 
     Args:
         system: the quasi-dynamic system (Q, b(u)).
-        model: the complementarity-free contact model (its K, D, γ, facets are used).
+        model: the contact model: :class:`ComplementarityFree` (its K, D, γ, facets are used) or
+            :class:`RelaxedQP` (its κ, facets and iterations).
         layout: the joint layout of q (object free joint first, then the robot).
         fingertips: forward kinematics of the fingertips, see :data:`Fingertips`.
         cost: the cost weights.
@@ -62,14 +96,15 @@ class ContactImplicitMPC:
         horizon: T steps; h: the model's time step [s].
         max_iter, memory: L-BFGS iterations per solve and its memory.
         compile: compile the objective and the optimizer's steps with ``torch.compile``
-            (fast steps; the first call compiles, cached on disk after that).
+            (fast steps; the first call compiles, cached on disk after that); for the relaxed
+            QP also each of its interior-point iterations.
         dtype: of the solve.
     """
 
     def __init__(
         self,
         system: QuasiDynamic,
-        model: ComplementarityFree,
+        model: ComplementarityFree | RelaxedQP,
         layout: JointLayout,
         fingertips: Fingertips,
         cost: ManipulationCost,
@@ -86,6 +121,11 @@ class ContactImplicitMPC:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
         if not h > 0:
             raise ValueError(f"h must be positive, got {h!r}")
+        if not isinstance(model, (ComplementarityFree, RelaxedQP)):
+            raise ValueError(
+                "model must be a ComplementarityFree or a RelaxedQP (the MPC differentiates "
+                f"through it), got {type(model).__name__}"
+            )
         self.system = system.to(dtype)
         self.model = model.to(dtype)
         self.layout, self.fingertips, self.cost = layout, fingertips, cost
@@ -97,8 +137,8 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
-        self._value_and_grad = (
-            torch.compile(self.value_and_grad, dynamic=False) if compile else self.value_and_grad
+        self._differentiate = (
+            torch.compile(self.differentiate, dynamic=False) if compile else self.differentiate
         )
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
 
@@ -106,22 +146,53 @@ class ContactImplicitMPC:
         """Forget the warm start (call between episodes)."""
         self._warm.zero_()
 
-    def rollout(self, q0, controls, jac, phi, stiffness, damping) -> torch.Tensor:
+    def frozen_rows(self, q: torch.Tensor, contacts: Contacts) -> tuple:
+        """The model's data frozen over the horizon, from the contacts at ``q (nq,)``.
+
+        Complementarity-free: ``(J̃ (m, nv), φ̃ (m,), K (m,), D (m,) or None)``; relaxed QP:
+        ``(J̃, φ̃, active (m,))``, to which :meth:`value_and_grad` appends the QP's solution.
+        """
+        jac, phi, active = contacts.dual_rows(self.model.facets)
+        if isinstance(self.model, RelaxedQP):
+            return jac, phi, active
+        K, D = self.model.coefficients(contacts, q)
+        return jac, phi, K.expand(phi.shape), None if D is None else D.expand(phi.shape)
+
+    def velocity(self, Q: torch.Tensor, b: torch.Tensor, rows: tuple) -> torch.Tensor:
+        """The model's next velocity ``(..., nv)`` with the :meth:`frozen_rows` ``rows``."""
+        if isinstance(self.model, RelaxedQP):
+            jac, phi, active, *solution = rows
+            v, _ = relaxed_qp_velocity(
+                Q,
+                b,
+                jac,
+                phi,
+                self.h,
+                active,
+                self.model.relaxation,
+                self.model.iterations,
+                solution=solution[0] if solution else None,
+            )
+            return v
+        jac, phi, K, D = rows
+        return cf_velocity(Q, b, jac, phi, self.h, K, D, self.model.gamma)
+
+    def rollout(self, q0, controls, rows: tuple) -> torch.Tensor:
         """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
 
-        J̃ ``(m, nv)``, φ̃ ``(m,)``, K and D ``(m,)`` stay frozen over the horizon, as does Q: so
-        each step's velocity depends on its own control only and all T are computed at once.
+        The :meth:`frozen_rows` ``rows`` stay frozen over the horizon, as does Q: so each
+        step's velocity depends on its own control only and all T are computed at once.
         """
         Q, b = self.system(controls)
-        v = cf_velocity(Q, b, jac, phi, self.h, stiffness, damping, self.model.gamma)
+        v = self.velocity(Q, b, rows)
         states = [q0.expand(*controls.shape[:-2], -1)]
         for t in range(self.horizon):
             states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
         return torch.stack(states, dim=-2)
 
-    def objective(self, controls, q0, jac, phi, stiffness, damping, target_p, target_quat):
+    def objective(self, controls, q0, rows: tuple, target_p, target_quat):
         """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`)."""
-        states = self.rollout(q0, controls, jac, phi, stiffness, damping)
+        states = self.rollout(q0, controls, rows)
         return self.cost(
             states[..., 0:3],
             states[..., 3:7],
@@ -131,8 +202,37 @@ class ContactImplicitMPC:
             target_quat,
         )
 
-    def value_and_grad(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
+    def qp_solution(self, controls: torch.Tensor, rows: tuple) -> RelaxedQPSolution:
+        """The relaxed QP's interior-point solution for each step of ``controls (..., T, n_u)``."""
+        Q, b = self.system(controls)
+        jac, phi, active = rows
+        return relaxed_qp_solve(
+            Q,
+            b,
+            jac,
+            phi,
+            self.h,
+            active,
+            self.model.relaxation,
+            self.model.iterations,
+            compile_steps=self.compiled,
+        )
+
+    def value_and_grad(
+        self, controls, q0, rows: tuple, target_p, target_quat
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
+
+        For the relaxed QP, its interior-point iteration runs first, outside the gradient
+        transform (a loop with a convergence test, which would break a compiled graph), and
+        the transform differentiates only the implicit-function step from that solution.
+        """
+        if isinstance(self.model, RelaxedQP):
+            rows = (*rows, self.qp_solution(controls, rows))
+        return self._differentiate(controls, q0, rows, target_p, target_quat)
+
+    def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``, given the rows.
 
         ``torch.func.grad`` rather than a recorded tape: one traced graph for value and
         gradient, which ``torch.compile`` fuses (about 2× faster than compiling the tape).
@@ -154,16 +254,13 @@ class ContactImplicitMPC:
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         with torch.no_grad():
-            jac, phi, _ = contacts.dual_rows(self.model.facets)
-            K, D = self.model.coefficients(contacts, q)
-            K = K.expand(phi.shape)
-            D = None if D is None else D.expand(phi.shape)
+            rows = self.frozen_rows(q, contacts)
         shape = (self.horizon, self.system.n_robot)
 
         def value_and_grad(x: torch.Tensor):
             controls = x.reshape(x.shape[0], *shape)
             with validate_args(False):
-                f, grad = self._value_and_grad(controls, q, jac, phi, K, D, target_p, target_quat)
+                f, grad = self.value_and_grad(controls, q, rows, target_p, target_quat)
             return f, grad.reshape(x.shape)
 
         result = lbfgs_box(

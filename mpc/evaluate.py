@@ -7,6 +7,11 @@ summary (JSON + CSV), the paper-style figure and, on request, a GIF. ``--workers
 trials in N processes; a trial depends only on its configuration, so the records are the
 same as a serial run's (timings aside).
 
+``--model qp`` plans through the complementarity-based baseline instead, the Anitescu QP with
+complementarity relaxed to κ (``--relaxation``, the paper's 5e-4) and differentiated through
+its KKT conditions: the paper's "implicit MPC". Its results go to ``results/ENV_qp`` and its
+trial records are named ``ENV_qp_...``, so the two models never share a record.
+
 Per control step: detect contacts at the real state (MuJoCo), solve the MPC (torch), and
 simulate the applied control (MuJoCo); the three times are recorded separately.
 """
@@ -15,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import multiprocessing
 import os
 import time
@@ -26,7 +32,9 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
+from torchcontact.mpc.controller import MPC_MODELS
 from torchcontact.mpc.suites import SUITES
+from torchcontact.relaxed_qp import RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 
 SUMMARY_KEYS = (
@@ -37,6 +45,12 @@ SUMMARY_KEYS = (
     "solve_ms_p90",
     "trials",
 )
+
+
+DEFAULT_MODEL = "complementarity_free"
+
+LEGACY_DEFAULTS = {"model": DEFAULT_MODEL}
+"""Values of configuration keys that records written before the key existed lack."""
 
 
 @dataclass(frozen=True)
@@ -51,12 +65,15 @@ class TrialConfig:
     max_iter: int
     compile: bool
     dtype: str
-    stiffness: float
+    stiffness: float | None  # K of the complementarity-free model; None for the QP
+    model: str = DEFAULT_MODEL
+    relaxation: float | None = None  # κ of the QP; None for the complementarity-free model
 
     @property
     def name(self) -> str:
         """File stem of the trial's record (a mesh path contributes its file stem)."""
-        return f"{self.env}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
+        env = self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
+        return f"{env}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
 
 
 def run_trial(
@@ -212,17 +229,43 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--trials", type=int, default=tasks.TRIALS, help="seeds 0…trials−1")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument("--max-iter", type=int, default=30, help="L-BFGS iterations per step")
-    parser.add_argument("--stiffness", type=float, default=None, help="K; default the paper's")
+    parser.add_argument(
+        "--model",
+        choices=MPC_MODELS,
+        default=DEFAULT_MODEL,
+        help="contact model the MPC plans through: complementarity_free (default) or qp, the "
+        "Anitescu QP with relaxed complementarity differentiated through its KKT conditions "
+        "(the paper's implicit-MPC baseline; results in results/ENV_qp)",
+    )
+    parser.add_argument(
+        "--stiffness",
+        type=float,
+        default=None,
+        help="K (complementarity_free); default the paper's",
+    )
+    parser.add_argument(
+        "--relaxation",
+        type=float,
+        default=None,
+        help=f"κ in β∘s = κ [N·m] (qp); default the paper's {RELAXATION:g}",
+    )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
     parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
-    parser.add_argument("--out", type=Path, default=None, help="default results/ENV")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="default results/ENV (results/ENV_qp for qp)"
+    )
     parser.add_argument("--json", type=Path, default=None, help="write the summary here too")
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    if args.stiffness is not None and not args.stiffness > 0:
-        parser.error(f"--stiffness must be positive, got {args.stiffness}")
+    qp = args.model == "qp"
+    if args.stiffness is not None and (qp or not args.stiffness > 0):
+        parser.error(
+            f"--stiffness must be positive and is for complementarity_free, got {args.stiffness}"
+        )
+    if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
+        parser.error(f"--relaxation must be positive and is for qp, got {args.relaxation}")
     for name in ("trials", "workers", "max_iter"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
@@ -233,8 +276,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.pairs = suite.select(args.task, args.object)
     except ValueError as error:
         parser.error(str(error))
-    args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
-    args.out = Path("results") / args.env if args.out is None else args.out
+    if qp:
+        args.relaxation = RELAXATION if args.relaxation is None else args.relaxation
+    else:
+        args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
+    default_out = args.env if args.model == DEFAULT_MODEL else f"{args.env}_{args.model}"
+    args.out = Path("results") / default_out if args.out is None else args.out
     return args
 
 
@@ -254,7 +301,7 @@ def _run_job(job: Job) -> dict:
     """Run ``job`` (reusing this process's plant and MPC when they match) and save it."""
     torch.set_num_threads(1)
     c = job.config
-    key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness)
+    key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness, c.model, c.relaxation)
     if _CACHE.get("key") != key:
         suite = SUITES[c.env]
         _CACHE.clear()
@@ -267,6 +314,8 @@ def _run_job(job: Job) -> dict:
             mpc=suite.make_mpc(
                 c.object,
                 c.stiffness,
+                model=c.model,
+                relaxation=c.relaxation,
                 max_iter=c.max_iter,
                 compile=c.compile,
                 dtype=getattr(torch, c.dtype),
@@ -285,7 +334,8 @@ def _finished(path: Path, config: TrialConfig) -> dict | None:
     if not path.exists():
         return None
     record = read_json(path)
-    return record if all(record.get(k) == v for k, v in config.__dict__.items()) else None
+    same = all(record.get(k, LEGACY_DEFAULTS.get(k)) == v for k, v in config.__dict__.items())
+    return record if same else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -308,6 +358,8 @@ def main(argv: list[str] | None = None) -> int:
                 not args.no_compile,
                 args.dtype,
                 args.stiffness,
+                args.model,
+                args.relaxation,
             )
             path = trials_dir / f"{config.name}.json"
             record = _finished(path, config)
@@ -316,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             video = args.out / f"{config.name}.gif" if args.video and seed == 0 else None
             jobs.append(Job(config, path, video))
+    qp = args.model == "qp"
+    about = f"relaxed QP, κ = {args.relaxation:g} N·m" if qp else f"K = {args.stiffness:g}"
+    print(f"MPC through the {args.model} model ({about})")
     print(TABLE_HEADER)
     for record in done.values():
         tqdm.write(_table_row(record))
@@ -341,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
     records = list(done.values()) + new
     records.sort(key=lambda r: (args.pairs.index((r["task"], r["object"])), r["seed"]))
     summary = summarize(records)
+    summary["model"], summary["relaxation"] = args.model, args.relaxation
     summary["pairs"] = {
         f"{task} {obj}": summarize([r for r in records if (r["task"], r["object"]) == (task, obj)])
         for task, obj in args.pairs

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from torchcontact.integrate import JointLayout
-from torchcontact.mpc.controller import ContactImplicitMPC, paper_model
+from torchcontact.mpc.controller import ContactImplicitMPC, mpc_model
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.tasks import OBJECT_SETTINGS
 from torchcontact.systems import QuasiDynamic
@@ -24,11 +24,19 @@ def fingertip_positions(q: torch.Tensor) -> torch.Tensor:
     return q[..., 7:16].unflatten(-1, (3, 3))
 
 
-def fingertips_mpc(obj: str, stiffness: float = STIFFNESS, **options) -> ContactImplicitMPC:
-    """The complementarity-free MPC for object ``obj`` with the paper's fingertip settings.
+def fingertips_mpc(
+    obj: str,
+    stiffness: float = STIFFNESS,
+    model: str = "complementarity_free",
+    relaxation: float | None = None,
+    **options,
+) -> ContactImplicitMPC:
+    """The MPC for object ``obj`` with the paper's fingertip settings.
 
-    K = ``stiffness``, D = 0.1·K, γ = 100, n_d = 4, T = 4, h from the object's settings;
-    ``options`` go to :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``, ...).
+    ``model``: ``"complementarity_free"`` (K = ``stiffness``, D = 0.1·K, γ = 100) or ``"qp"``
+    (the relaxed QP, κ = ``relaxation``, default the paper's), see :func:`mpc_model`; n_d = 4,
+    T = 4, h from the object's settings; ``options`` go to :class:`ContactImplicitMPC`
+    (``max_iter``, ``memory``, ``compile``, ...).
     """
     settings = OBJECT_SETTINGS[obj]
     system = QuasiDynamic(
@@ -39,7 +47,7 @@ def fingertips_mpc(obj: str, stiffness: float = STIFFNESS, **options) -> Contact
     )
     return ContactImplicitMPC(
         system,
-        paper_model(stiffness),
+        mpc_model(model, stiffness, relaxation),
         LAYOUT,
         fingertip_positions,
         ManipulationCost(),

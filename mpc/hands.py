@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcontact.integrate import JointLayout
-from torchcontact.mpc.controller import ContactImplicitMPC, paper_model
+from torchcontact.mpc.controller import ContactImplicitMPC, mpc_model
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.sim.hands import HANDS, Hand
 from torchcontact.sim.kinematics import FingertipKinematics
@@ -69,13 +69,20 @@ class JointFingertips(torch.nn.Module):
 
 
 def hand_mpc(
-    hand: Hand | str, stiffness: float | None = None, dtype: torch.dtype = torch.float64, **options
+    hand: Hand | str,
+    stiffness: float | None = None,
+    dtype: torch.dtype = torch.float64,
+    model: str = "complementarity_free",
+    relaxation: float | None = None,
+    **options,
 ) -> ContactImplicitMPC:
-    """The complementarity-free MPC of ``hand`` with the paper's settings.
+    """The MPC of ``hand`` with the paper's settings.
 
-    K = ``stiffness`` (default the paper's 0.5), D = 0.1·K, γ = 100, n_d = 4, T = 4, h = 0.1;
-    fingertips by pytorch-kinematics from the hand's MJCF; ``options`` go to
-    :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``, ...).
+    ``model``: ``"complementarity_free"`` (K = ``stiffness``, default the paper's 0.5, D = 0.1·K,
+    γ = 100) or ``"qp"`` (the relaxed QP, κ = ``relaxation``, default the paper's), see
+    :func:`mpc_model`; n_d = 4, T = 4, h = 0.1; fingertips by pytorch-kinematics from the hand's
+    MJCF; ``options`` go to :class:`ContactImplicitMPC` (``max_iter``, ``memory``, ``compile``,
+    ...).
     """
     hand = HANDS[hand] if isinstance(hand, str) else hand
     settings = MPC_SETTINGS[hand.name]
@@ -88,7 +95,7 @@ def hand_mpc(
     )
     return ContactImplicitMPC(
         system,
-        paper_model(settings.stiffness if stiffness is None else stiffness),
+        mpc_model(model, settings.stiffness if stiffness is None else stiffness, relaxation),
         JointLayout(["free"] + ["hinge"] * n),
         JointFingertips(hand, dtype),
         settings.cost,

@@ -32,7 +32,9 @@ class Suite:
         stiffness: the paper's K for its MPC.
         user_meshes: whether ``--object`` may be a mesh file (run on every task).
         make_env: ``obj ↦`` plant, with contacts beyond the slots truncated to the deepest.
-        make_mpc: ``(obj, stiffness, **options) ↦`` :class:`ContactImplicitMPC`.
+        make_mpc: ``(obj, stiffness, **options) ↦`` :class:`ContactImplicitMPC`; ``options``
+            are ``model`` and ``relaxation`` (see :func:`torchcontact.mpc.controller.mpc_model`)
+            and the controller's.
         sample: ``(env, task, obj, seed) ↦`` initial and target poses ``(7,), (7,)``.
     """
 
@@ -83,7 +85,7 @@ def _fingertips_env(obj: str) -> FingertipsEnv:
 def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample) -> Suite:
     """The suite of ``hand``: its one ``task`` on each of the 17 objects or a user mesh."""
 
-    def make_mpc(obj: str, stiffness: float, **options) -> ContactImplicitMPC:
+    def make_mpc(obj: str, stiffness: float | None, **options) -> ContactImplicitMPC:
         return hand_mpc(hand, stiffness=stiffness, **options)
 
     return Suite(

@@ -18,6 +18,7 @@ from torchcontact import (
     Contacts,
     QuasiDynamic,
     Relative,
+    RelaxedQP,
     StateNetwork,
     contact_model,
 )
@@ -282,7 +283,7 @@ def test_infinite_gamma_is_refused_when_built():
 
 
 @pytest.mark.parametrize("facets", [2, 0, 4.0, "8", None])
-@pytest.mark.parametrize("name", ["complementarity_free", "qp"])
+@pytest.mark.parametrize("name", ["complementarity_free", "qp", "relaxed_qp"])
 def test_bad_facets_raise(facets, name):
     with pytest.raises(ValueError, match="facets"):
         contact_model(name, facets=facets)
@@ -304,6 +305,11 @@ def test_models_are_built_by_name():
     v, beta = qp.row_impulses(Q, b, c, 0.1)
     jac, phi, _ = c.dual_rows(8)
     assert bool((beta >= -1e-9).all()) and bool((jac @ v + phi / 0.1 >= -1e-7).all())
+    relaxed = contact_model("relaxed_qp", relaxation=1e-9, facets=8)
+    assert isinstance(relaxed, RelaxedQP) and relaxed.relaxation == 1e-9
+    v_relaxed, beta_relaxed = relaxed.row_impulses(Q, b, c, 0.1)
+    torch.testing.assert_close(v_relaxed, v, rtol=1e-5, atol=1e-9)  # β is not unique, J̃ᵀβ is:
+    torch.testing.assert_close(jac.T @ beta_relaxed, jac.T @ beta, rtol=1e-5, atol=1e-9)
     for name in ("QP", "anitescu", ""):
         with pytest.raises(ValueError, match="name"):
             contact_model(name)

@@ -6,9 +6,11 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from torchcontact import AnitescuQP
 from torchcontact.integrate import integrate
 from torchcontact.mpc import tasks
-from torchcontact.mpc.fingertips import CONTROL_BOUND, fingertips_mpc
+from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.fingertips import CONTROL_BOUND, LAYOUT, fingertip_positions, fingertips_mpc
 from torchcontact.sim import FingertipsEnv
 
 DT = torch.float64
@@ -27,6 +29,12 @@ def mpc():
     return fingertips_mpc("cube", max_iter=15)
 
 
+@pytest.fixture(scope="module")
+def qp_mpc():
+    """The same MPC through the relaxed QP (the paper's implicit-MPC baseline)."""
+    return fingertips_mpc("cube", model="qp", max_iter=15)
+
+
 def _touching_state(env):
     """The cube 0.5 mm into the ground with tip 0 pressed 1 mm into its +x face."""
     tips = np.array([0.039, 0.0, 0.03, 0.0, 0.2, 0.01, -0.2, 0.0, 0.01])
@@ -34,18 +42,16 @@ def _touching_state(env):
     return torch.as_tensor(env.state()), env.contacts(DT)
 
 
-def _frozen_rows(mpc, q, contacts):
-    jac, phi, _ = contacts.dual_rows(mpc.model.facets)
-    K, D = mpc.model.coefficients(contacts, q)
-    return jac, phi, K.expand(phi.shape), D.expand(phi.shape)
+TARGET = (torch.tensor([0.05, 0.02, 0.03], dtype=DT), torch.tensor([0.0, 0, 0, 1], dtype=DT))
 
 
-def test_rollout_equals_stepping_the_model(env, mpc):
+@pytest.mark.parametrize("model", ["mpc", "qp_mpc"])
+def test_rollout_equals_stepping_the_model(env, model, request):
+    mpc = request.getfixturevalue(model)
     q, contacts = _touching_state(env)
     assert int(contacts.n_active()) == 5  # four ground corners and the tip
-    jac, phi, K, D = _frozen_rows(mpc, q, contacts)
     controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
-    states = mpc.rollout(q, controls, jac, phi, K, D)
+    states = mpc.rollout(q, controls, mpc.frozen_rows(q, contacts))
     assert states.shape == (2, mpc.horizon + 1, 16)
     for b in range(2):
         state = q
@@ -56,23 +62,44 @@ def test_rollout_equals_stepping_the_model(env, mpc):
             torch.testing.assert_close(states[b, t + 1], state)
 
 
-def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, mpc):
+@pytest.mark.parametrize("model", ["mpc", "qp_mpc"])
+def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, model, request):
+    mpc = request.getfixturevalue(model)
     q, contacts = _touching_state(env)
-    rows = _frozen_rows(mpc, q, contacts)
-    target = (torch.tensor([0.05, 0.02, 0.03], dtype=DT), torch.tensor([0.0, 0, 0, 1], dtype=DT))
+    rows = mpc.frozen_rows(q, contacts)
     controls = (0.004 * torch.randn(3, mpc.horizon, 9, dtype=DT)).requires_grad_(True)
-    cost, grad = mpc.value_and_grad(controls.detach(), q, *rows, *target)
-    taped = mpc.objective(controls, q, *rows, *target)
+    cost, grad = mpc.value_and_grad(controls.detach(), q, rows, *TARGET)
+    taped = mpc.objective(controls, q, rows, *TARGET)  # the QP solved inside the tape
     (taped_grad,) = torch.autograd.grad(taped.sum(), controls)
     torch.testing.assert_close(cost, taped.detach())
     torch.testing.assert_close(grad, taped_grad)
     direction = torch.randn_like(controls)
     eps = 1e-7
-    plus = mpc.objective(controls.detach() + eps * direction, q, *rows, *target)
-    minus = mpc.objective(controls.detach() - eps * direction, q, *rows, *target)
+    plus = mpc.objective(controls.detach() + eps * direction, q, rows, *TARGET)
+    minus = mpc.objective(controls.detach() - eps * direction, q, rows, *TARGET)
     torch.testing.assert_close(
         (plus - minus) / (2 * eps), (grad * direction).sum((-1, -2)), rtol=1e-5, atol=1e-7
     )
+
+
+def test_qp_plan_stays_in_its_box_and_lowers_the_cost_from_the_warm_start(env, qp_mpc):
+    q, contacts = _touching_state(env)
+    qp_mpc.reset()
+    rows = qp_mpc.frozen_rows(q, contacts)
+    warm, _ = qp_mpc.value_and_grad(torch.zeros(1, qp_mpc.horizon, 9, dtype=DT), q, rows, *TARGET)
+    plan = qp_mpc.plan(q, contacts, *TARGET)
+    assert bool((plan.controls.abs() <= CONTROL_BOUND).all())
+    assert plan.cost < 0.99 * float(warm[0])
+    assert plan.iterations > 0 and np.isfinite(plan.cost)
+
+
+def test_the_mpc_refuses_models_it_cannot_differentiate(mpc):
+    with pytest.raises(ValueError, match="model"):
+        ContactImplicitMPC(
+            mpc.system, AnitescuQP(), LAYOUT, fingertip_positions, mpc.cost, -1e-3, 1e-3
+        )
+    with pytest.raises(ValueError, match="model"):
+        fingertips_mpc("cube", model="osqp")
 
 
 @settings(max_examples=12, deadline=None)

@@ -1,12 +1,14 @@
 """``torchcontact run fingertips``: one short trial end to end, its files, and resuming."""
 
 import json
+from pathlib import Path
 
 import pytest
 
 from torchcontact.cli import main
 from torchcontact.mpc import evaluate
-from torchcontact.mpc.evaluate import SUMMARY_KEYS, summarize
+from torchcontact.mpc.evaluate import SUMMARY_KEYS, parse_args, summarize
+from torchcontact.relaxed_qp import RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
 FAST = ["--max-steps", "15", "--max-iter", "5", "--no-compile", "--no-progress"]
@@ -41,6 +43,35 @@ def test_finished_trials_are_not_run_again(tmp_path, monkeypatch):
         main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", out])
 
 
+def test_a_short_qp_trial_is_recorded_under_its_own_name(tmp_path, capsys):
+    out = tmp_path / "out"
+    fast = ["--max-steps", "5", *FAST[2:]]
+    assert main([*ARGS, *fast, "--model", "qp", "--out", str(out)]) == 0
+    record = json.loads((out / "trials" / "fingertips_qp_rotation_cube_seed0.json").read_text())
+    assert record["model"] == "qp" and record["relaxation"] == RELAXATION
+    assert record["stiffness"] is None and record["steps"] == 5
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["model"] == "qp" and summary["trials"] == 1
+    assert "through the qp model" in capsys.readouterr().out
+
+
+def test_each_model_has_its_default_output_folder():
+    assert parse_args(["fingertips"]).out == Path("results/fingertips")
+    assert parse_args(["fingertips", "--model", "qp"]).out == Path("results/fingertips_qp")
+
+
+def test_records_written_before_the_model_option_still_resume(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    main([*ARGS, *FAST, "--out", str(out)])
+    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
+    record = json.loads(path.read_text())
+    path.write_text(
+        json.dumps({k: v for k, v in record.items() if k not in ("model", "relaxation")})
+    )
+    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: pytest.fail("run again"))
+    assert main([*ARGS, *FAST, "--out", str(out)]) == 0
+
+
 @pytest.mark.parametrize(
     "bad, message",
     [
@@ -48,6 +79,10 @@ def test_finished_trials_are_not_run_again(tmp_path, monkeypatch):
         (["--stiffness", "-1"], "--stiffness"),
         (["--task", "spin"], "--task"),
         (["--object", "teapot"], "--object"),
+        (["--model", "cf"], "--model"),
+        (["--model", "qp", "--stiffness", "1"], "--stiffness"),
+        (["--relaxation", "1e-3"], "--relaxation"),
+        (["--model", "qp", "--relaxation", "0"], "--relaxation"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, capsys, bad, message):

@@ -12,8 +12,16 @@ select_gl_backend()
 from torchcontact.contacts import Contacts, facet_directions
 from torchcontact.functional import cf_multipliers, cf_velocity, softplus
 from torchcontact.integrate import JointLayout, integrate
-from torchcontact.model import MODELS, AnitescuQP, ComplementarityFree, ContactModel, contact_model
+from torchcontact.model import (
+    MODELS,
+    AnitescuQP,
+    ComplementarityFree,
+    ContactModel,
+    RelaxedQP,
+    contact_model,
+)
 from torchcontact.qp import qp_solve
+from torchcontact.relaxed_qp import relaxed_qp_velocity
 from torchcontact.stiffness import (
     PARAMETERIZATIONS,
     Constant,
@@ -40,6 +48,7 @@ __all__ = [
     "Parameterization",
     "PerRow",
     "QuasiDynamic",
+    "RelaxedQP",
     "Relative",
     "StateNetwork",
     "cf_multipliers",
@@ -50,6 +59,7 @@ __all__ = [
     "integrate",
     "parameterization",
     "qp_solve",
+    "relaxed_qp_velocity",
     "set_validate_args",
     "softplus",
     "validate_args",

@@ -1,7 +1,9 @@
 """Contact models as ``nn.Module``s, interchangeable by name: ``contact_model("qp")``.
 
-Both map one step's metric ``Q``, linear term ``b`` and :class:`Contacts` to the next velocity
-``v⁺`` and expose the row and contact impulses for inspection.
+Each maps one step's metric ``Q``, linear term ``b`` and :class:`Contacts` to the next velocity
+``v⁺`` and exposes the row and contact impulses for inspection: the complementarity-free step,
+the Anitescu QP solved exactly by OSQP, and the same QP with relaxed complementarity solved by a
+differentiable interior-point method.
 """
 
 from __future__ import annotations
@@ -19,6 +21,12 @@ from torchcontact.functional import (
     velocity_from_multipliers,
 )
 from torchcontact.qp import qp_solve
+from torchcontact.relaxed_qp import (
+    RELAXATION,
+    _check_iterations,
+    _check_relaxation,
+    relaxed_qp_velocity,
+)
 from torchcontact.stiffness import Parameterization, parameterization
 
 
@@ -118,17 +126,57 @@ class AnitescuQP(ContactModel):
         return qp_solve(Q, b, jac, phi, h, active, self.settings)
 
 
+class RelaxedQP(ContactModel):
+    """The Anitescu QP with complementarity relaxed to ``β∘s = κ``: differentiable, batched.
+
+    The complementarity-based baseline of the paper's MPC comparison ("implicit MPC"); see
+    :func:`torchcontact.relaxed_qp.relaxed_qp_velocity`.
+
+    Args:
+        relaxation: κ > 0 [N·m]; the paper's 5e-4 by default.
+        facets: friction-cone facets n_d per contact.
+        iterations: a fixed number of interior-point iterations (for ``torch.compile``), or
+            None to iterate to the dtype's tolerance.
+    """
+
+    def __init__(
+        self, relaxation: float = RELAXATION, facets: int = 4, iterations: int | None = None
+    ):
+        super().__init__()
+        self.relaxation = _check_relaxation(relaxation)
+        self.facets = _check_facets(facets)
+        _check_iterations(iterations)
+        self.iterations = iterations
+
+    def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        jac, phi, active = contacts.dual_rows(self.facets)
+        return relaxed_qp_velocity(
+            Q, b, jac, phi, h, active, relaxation=self.relaxation, iterations=self.iterations
+        )
+
+    def extra_repr(self) -> str:
+        return f"relaxation={self.relaxation}, facets={self.facets}, iterations={self.iterations}"
+
+
 MODELS: dict[str, type[ContactModel]] = {
     "complementarity_free": ComplementarityFree,
     "qp": AnitescuQP,
+    "relaxed_qp": RelaxedQP,
 }
 
 
 def contact_model(name: str, **kwargs) -> ContactModel:
-    """Build a contact model by name: ``"complementarity_free"`` or ``"qp"``."""
+    """Build a contact model by name: ``"complementarity_free"``, ``"qp"`` or ``"relaxed_qp"``."""
     if name not in MODELS:
         raise ValueError(f"name must be one of {sorted(MODELS)}, got {name!r}")
     return MODELS[name](**kwargs)
 
 
-__all__ = ["AnitescuQP", "ComplementarityFree", "ContactModel", "MODELS", "contact_model"]
+__all__ = [
+    "AnitescuQP",
+    "ComplementarityFree",
+    "ContactModel",
+    "MODELS",
+    "RelaxedQP",
+    "contact_model",
+]
