@@ -122,7 +122,10 @@ SUITES: dict[str, Suite] = {
         "on-palm",
         tasks.ALLEGRO_SUCCESS,
         lambda env, task, obj, seed: tasks.sample_on_palm(
-            env.resting_pose, env.support_centre, seed
+            env.resting_pose,
+            env.support_centre,
+            seed,
+            tasks.ON_PALM_OBJECT_YAW_RANGES.get(obj, tasks.ON_PALM_YAW_RANGE),
         ),
     ),
 }

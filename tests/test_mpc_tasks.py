@@ -189,3 +189,14 @@ def test_hand_criteria():
     assert tracker.within_tolerance(np.array([0.5, 0.5, 0.5, 1, 0, 0, 0]))  # orientation only
     with pytest.raises(ValueError, match="seed"):
         tasks.sample_in_hand(_flat_rest, -1)
+
+
+def test_allegro_suite_starts_the_stick_across_the_palm():
+    from torchcontact.mpc.suites import SUITES
+    from torchcontact.sim.hands import HandEnv
+
+    env = HandEnv("allegro", "stick", overflow="deepest")
+    low, high = tasks.ON_PALM_OBJECT_YAW_RANGES["stick"]
+    for seed in range(5):
+        initial, _ = SUITES["allegro"].sample(env, "on-palm", "stick", seed)
+        assert low <= 2 * np.arctan2(initial[6], initial[3]) <= high
