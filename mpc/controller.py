@@ -25,8 +25,9 @@ from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.optim import lbfgs_box
 from torchcontact.relaxed_qp import (
-    RELAXATION,
+    PAPER_RELAXATION,
     RelaxedQPSolution,
+    paper_relaxation,
     relaxed_qp_solve,
     relaxed_qp_velocity,
 )
@@ -53,20 +54,23 @@ def paper_model(stiffness: float) -> ComplementarityFree:
 
 
 def mpc_model(
-    name: str, stiffness: float | None = None, relaxation: float | None = None
+    name: str, stiffness: float | None = None, relaxation: float | None = None, h: float = 0.1
 ) -> ComplementarityFree | RelaxedQP:
     """The MPC's contact model by name (one of :data:`MPC_MODELS`), n_d = 4.
 
     ``"complementarity_free"``: :func:`paper_model` with K = ``stiffness``.
-    ``"qp"``: the Anitescu QP with complementarity relaxed to κ = ``relaxation`` [N·m]
-    (default the paper's :data:`~torchcontact.relaxed_qp.RELAXATION`).
+    ``"qp"``: the Anitescu QP with complementarity relaxed to the paper's κ = ``relaxation``
+    (default :data:`~torchcontact.relaxed_qp.PAPER_RELAXATION`, 5e-4, in the paper's scaling of
+    the QP; converted for the model's step ``h`` [s] by
+    :func:`~torchcontact.relaxed_qp.paper_relaxation`).
     """
     if name == "complementarity_free":
         if stiffness is None:
             raise ValueError("stiffness is required by the complementarity-free model")
         return paper_model(stiffness)
     if name == "qp":
-        return RelaxedQP(RELAXATION if relaxation is None else relaxation, facets=4)
+        kappa = PAPER_RELAXATION if relaxation is None else relaxation
+        return RelaxedQP(paper_relaxation(h, kappa), facets=4)
     raise ValueError(f"model must be one of {MPC_MODELS}, got {name!r}")
 
 

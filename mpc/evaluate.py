@@ -8,7 +8,8 @@ trials in N processes; a trial depends only on its configuration, so the records
 same as a serial run's (timings aside).
 
 ``--model qp`` plans through the complementarity-based baseline instead, the Anitescu QP with
-complementarity relaxed to κ (``--relaxation``, the paper's 5e-4) and differentiated through
+complementarity relaxed to κ (``--relaxation``, the paper's 5e-4 in its code's scaling
+λ∘g = κ, see :func:`torchcontact.relaxed_qp.paper_relaxation`) and differentiated through
 its KKT conditions: the paper's "implicit MPC". Its results go to ``results/ENV_qp`` and its
 trial records are named ``ENV_qp_...``, so the two models never share a record.
 
@@ -34,7 +35,7 @@ from tqdm.auto import tqdm
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import MPC_MODELS
 from torchcontact.mpc.suites import SUITES
-from torchcontact.relaxed_qp import RELAXATION
+from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 
 SUMMARY_KEYS = (
@@ -247,7 +248,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--relaxation",
         type=float,
         default=None,
-        help=f"κ in β∘s = κ [N·m] (qp); default the paper's {RELAXATION:g}",
+        help=f"the paper's κ in λ∘g = κ (qp); default {PAPER_RELAXATION:g}",
     )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
@@ -277,7 +278,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     except ValueError as error:
         parser.error(str(error))
     if qp:
-        args.relaxation = RELAXATION if args.relaxation is None else args.relaxation
+        args.relaxation = PAPER_RELAXATION if args.relaxation is None else args.relaxation
     else:
         args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
     default_out = args.env if args.model == DEFAULT_MODEL else f"{args.env}_{args.model}"
@@ -369,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
             video = args.out / f"{config.name}.gif" if args.video and seed == 0 else None
             jobs.append(Job(config, path, video))
     qp = args.model == "qp"
-    about = f"relaxed QP, κ = {args.relaxation:g} N·m" if qp else f"K = {args.stiffness:g}"
+    about = f"relaxed QP, paper's κ = {args.relaxation:g}" if qp else f"K = {args.stiffness:g}"
     print(f"MPC through the {args.model} model ({about})")
     print(TABLE_HEADER)
     for record in done.values():

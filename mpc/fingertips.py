@@ -47,7 +47,7 @@ def fingertips_mpc(
     )
     return ContactImplicitMPC(
         system,
-        mpc_model(model, stiffness, relaxation),
+        mpc_model(model, stiffness, relaxation, settings.model_step),
         LAYOUT,
         fingertip_positions,
         ManipulationCost(),

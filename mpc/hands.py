@@ -95,7 +95,12 @@ def hand_mpc(
     )
     return ContactImplicitMPC(
         system,
-        mpc_model(model, settings.stiffness if stiffness is None else stiffness, relaxation),
+        mpc_model(
+            model,
+            settings.stiffness if stiffness is None else stiffness,
+            relaxation,
+            settings.h,
+        ),
         JointLayout(["free"] + ["hinge"] * n),
         JointFingertips(hand, dtype),
         settings.cost,

@@ -8,7 +8,7 @@ import pytest
 from torchcontact.cli import main
 from torchcontact.mpc import evaluate
 from torchcontact.mpc.evaluate import SUMMARY_KEYS, parse_args, summarize
-from torchcontact.relaxed_qp import RELAXATION
+from torchcontact.relaxed_qp import PAPER_RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
 FAST = ["--max-steps", "15", "--max-iter", "5", "--no-compile", "--no-progress"]
@@ -48,7 +48,7 @@ def test_a_short_qp_trial_is_recorded_under_its_own_name(tmp_path, capsys):
     fast = ["--max-steps", "5", *FAST[2:]]
     assert main([*ARGS, *fast, "--model", "qp", "--out", str(out)]) == 0
     record = json.loads((out / "trials" / "fingertips_qp_rotation_cube_seed0.json").read_text())
-    assert record["model"] == "qp" and record["relaxation"] == RELAXATION
+    assert record["model"] == "qp" and record["relaxation"] == PAPER_RELAXATION
     assert record["stiffness"] is None and record["steps"] == 5
     summary = json.loads((out / "summary.json").read_text())
     assert summary["model"] == "qp" and summary["trials"] == 1

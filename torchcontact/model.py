@@ -133,7 +133,8 @@ class RelaxedQP(ContactModel):
     :func:`torchcontact.relaxed_qp.relaxed_qp_velocity`.
 
     Args:
-        relaxation: κ > 0 [N·m]; the paper's 5e-4 by default.
+        relaxation: κ > 0 [N·m]; by default the paper's 5e-4 at h = 0.1 s, converted to this
+            QP's scaling (:func:`torchcontact.relaxed_qp.paper_relaxation`).
         facets: friction-cone facets n_d per contact.
         iterations: a fixed number of interior-point iterations (for ``torch.compile``), or
             None to iterate to the dtype's tolerance.

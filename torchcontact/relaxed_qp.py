@@ -58,8 +58,24 @@ from torchcontact.functional import (
 )
 from torchcontact.validation import check_shape
 
-RELAXATION = 5e-4
-"""The paper's κ in ``β∘s = κ`` [N·m] (the objective's unit; see the module docstring)."""
+PAPER_RELAXATION = 5e-4
+"""The paper's κ, in its code's scaling of the same QP: ``min ½vᵀQv − vᵀb/h`` s.t.
+``g = J̃v + φ̃/h ≥ 0`` with ``λ∘g = κ`` (see :func:`paper_relaxation`)."""
+
+
+def paper_relaxation(h: float, kappa: float = PAPER_RELAXATION) -> float:
+    """κ here [N·m] for the paper's ``kappa`` at time step ``h`` [s]: ``h²·kappa``.
+
+    The paper's objective is this module's divided by h², so its multipliers are λ = β/h² and
+    its ``λ∘g = κ`` reads ``β∘s = h²κ`` here (5e-6 N·m for 5e-4 at h = 0.1 s). Taken
+    unconverted, 5e-4 would make every row push with 5e-4/d N at predicted distance d: a
+    resting 10 g cube would rise about 12 mm per step.
+    """
+    return _check_relaxation(kappa) * float(h) ** 2
+
+
+RELAXATION = 5e-6
+"""Default κ in ``β∘s = κ`` [N·m]: the paper's 5e-4 at its h = 0.1 s (:func:`paper_relaxation`)."""
 
 CENTERING = 0.1
 """σ: each Newton step aims at ``β∘s = max(κ, σ·mean(β∘s))``."""
@@ -314,7 +330,8 @@ def relaxed_qp_velocity(
         h: time step [s], a float or a tensor of the batch shape ``(...)``.
         active: ``(..., m)`` bool rows to keep, or None for all. The others are dropped (their
             J̃ row is zeroed and their slack set to 1, so they act on nothing) and their β is 0.
-        relaxation: κ > 0 in ``β∘s = κ`` [N·m]; the paper's 5e-4 by default.
+        relaxation: κ > 0 in ``β∘s = κ`` [N·m]; by default the paper's at h = 0.1 s
+            (:func:`paper_relaxation`).
         iterations: run exactly this many interior-point iterations (no host sync: a fixed
             cost, traceable by ``torch.compile``), or None to iterate until the relative KKT
             residual is at most ``tol`` or ``max_iter`` iterations have run.
@@ -350,9 +367,11 @@ def relaxed_qp_velocity(
 
 
 __all__ = [
+    "PAPER_RELAXATION",
     "RELAXATION",
     "RelaxedQPSolution",
     "default_tolerance",
+    "paper_relaxation",
     "relaxed_qp_solve",
     "relaxed_qp_velocity",
 ]
