@@ -20,6 +20,10 @@ JOBS = {
         "torchcontact.experiments.full_dynamic",
         "full-dynamic settings 1-3: complementarity-free vs QP vs MuJoCo",
     ),
+    "learn-k": (
+        "torchcontact.learn.job",
+        "learn K(q), D(q) from MuJoCo rollouts; compare with the paper's and the best constant K",
+    ),
 }
 
 

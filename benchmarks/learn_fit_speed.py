@@ -1,0 +1,119 @@
+"""Time the K(q), D(q) fit on a large dataset (the target: 100k transitions in <= 2 minutes).
+
+Collects the transitions with :func:`torchcontact.learn.data.collect` (resumable; a rerun
+reuses them), precomputes the K-independent pieces of the step and runs the same
+:func:`torchcontact.learn.fit.fit` as ``torchcontact learn-k``, one CPU thread. Prints a table
+and writes ``results/learn/fit_speed.json``::
+
+    python benchmarks/learn_fit_speed.py                       # 2000 x 50 = 100k transitions
+    python benchmarks/learn_fit_speed.py --trajectories 40     # a quick check
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+import torch  # noqa: E402
+
+from torchcontact.learn.data import collect, load  # noqa: E402
+from torchcontact.learn.evaluate import one_step_error  # noqa: E402
+from torchcontact.learn.fit import (  # noqa: E402
+    DAMPING_KINDS,
+    STIFFNESS_KINDS,
+    FitConfig,
+    StepData,
+    build_model,
+    constant_model,
+    fit,
+)
+from torchcontact.learn.scenes import SCENES  # noqa: E402
+from torchcontact.results import write_json  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", choices=SCENES, default="trifinger")
+    parser.add_argument("--object", default="cube")
+    parser.add_argument("--trajectories", type=int, default=2000)
+    parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--actions", default="random", help="random, mpc or mixed")
+    parser.add_argument("--stiffness", choices=STIFFNESS_KINDS, default="contact_network")
+    parser.add_argument("--damping", choices=DAMPING_KINDS, default="contact_network")
+    parser.add_argument("--hidden", type=int, default=32)
+    parser.add_argument("--epochs", type=int, default=30)
+    parser.add_argument("--batch-size", type=int, default=1024)
+    parser.add_argument("--lr", type=float, default=3e-3)
+    parser.add_argument("--out", type=Path, default=Path("results/learn"))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    data_dir = (
+        args.out / "data" / f"{args.scene}_{args.object}_{args.actions}_steps{args.steps}_seed0"
+    )
+    collect(
+        data_dir,
+        args.scene,
+        args.object,
+        trajectories=args.trajectories,
+        steps=args.steps,
+        actions=args.actions,
+        mpc_options={"compile": True},
+    )
+    start = time.perf_counter()
+    transitions = load(data_dir, args.trajectories)
+    load_s = time.perf_counter() - start
+    meta = transitions.meta
+    train, val, test = transitions.split(seed=0)
+    start = time.perf_counter()
+    steps = [StepData.from_transitions(part, meta["facets"]) for part in (train, val, test)]
+    precompute_s = time.perf_counter() - start
+    config = FitConfig(
+        stiffness=args.stiffness,
+        damping=args.damping,
+        hidden=args.hidden,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        patience=args.epochs,
+    )
+    weights = tuple(meta["pose_weights"])
+    result = fit(build_model(config, meta), steps[0], steps[1], weights, config)
+    paper = one_step_error(constant_model(meta["paper_stiffness"], meta), steps[2], weights)
+    learned = one_step_error(result.model, steps[2], weights)
+    epochs = len(result.history)
+    record = {
+        "transitions": len(transitions),
+        "train_transitions": len(train),
+        "load_seconds": load_s,
+        "precompute_seconds": precompute_s,
+        "fit_seconds": result.seconds,
+        "epochs": epochs,
+        "seconds_per_epoch": result.seconds / epochs,
+        "adam_steps": epochs * -(-len(train) // args.batch_size),
+        "threads": torch.get_num_threads(),
+        "config": vars(args) | {"out": str(args.out)},
+        "one_step_test_paper_k": paper,
+        "one_step_test_learned": learned,
+    }
+    print(
+        f"{'transitions':>11s} {'train':>7s} {'load s':>7s} {'precompute s':>12s} "
+        f"{'fit s':>7s} {'epochs':>6s} {'s/epoch':>7s}"
+    )
+    print(
+        f"{len(transitions):>11d} {len(train):>7d} {load_s:>7.1f} {precompute_s:>12.1f} "
+        f"{result.seconds:>7.1f} {epochs:>6d} {result.seconds / epochs:>7.2f}"
+    )
+    print(
+        f"one-step test error: paper K {paper['pos_mm']:.2f} mm {paper['angle_deg']:.2f}°, "
+        f"learned {learned['pos_mm']:.2f} mm {learned['angle_deg']:.2f}°"
+    )
+    path = write_json(args.out / "fit_speed.json", record)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,370 @@
+"""Fit the contact stiffness K(q) and damping D(q) of the complementarity-free model to data.
+
+The model is the scene's :class:`~torchcontact.model.ComplementarityFree` with learnable
+sub-modules; the loss is the one-step object pose error against MuJoCo, weighted as in the
+MPC's final cost, ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` (the paper's w_p = 500 or 100,
+w_q = 5). Only λ depends on K and D, so everything else of the step is computed once
+(:class:`StepData`): per transition the row gaps ``J̃Q⁻¹b``, the row distances φ̃, the
+contact-free object velocity ``(Q⁻¹b)ₒ/h`` and the object rows of ``Q⁻¹J̃ᵀ/h``; a training
+step is then ``λ = softplus_γ(−K(J̃Q⁻¹b + φ̃) − D·J̃Q⁻¹b/h)``, ``vₒ = (Q⁻¹b)ₒ/h + (Q⁻¹J̃ᵀ)ₒλ/h``
+and the object's pose update, on float32 mini-batches (Adam, early stopping on a validation
+split, the best state kept). :func:`save_checkpoint` / :func:`load_checkpoint` store the
+model's ``state_dict`` with the :class:`FitConfig` and dataset metadata that rebuild it.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import math
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import torch
+from tqdm.auto import tqdm
+
+from torchcontact.contacts import Contacts
+from torchcontact.functional import softplus
+from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
+from torchcontact.learn.data import Transitions, select_contacts
+from torchcontact.learn.networks import ObjectContactNetwork
+from torchcontact.model import ComplementarityFree
+from torchcontact.mpc.costs import position_cost, quaternion_cost
+from torchcontact.results import atomic_write
+from torchcontact.stiffness import (
+    Constant,
+    ContactNetwork,
+    Parameterization,
+    PerRow,
+    Relative,
+    StateNetwork,
+)
+from torchcontact.validation import validate_args
+
+STIFFNESS_KINDS = ("constant", "per_row", "contact_network", "state_network", "object_network")
+"""Learnable parameterizations of K: those of :mod:`torchcontact.stiffness` and
+:class:`~torchcontact.learn.networks.ObjectContactNetwork`."""
+
+DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
+"""D: ``"paper"`` fixed 0.1·K, ``"none"``, ``"relative"`` a learned ratio·K, or its own
+learnable parameterization (started at 0.1 × the initial K)."""
+
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """What to fit and how.
+
+    Attributes:
+        stiffness: parameterization of K, one of :data:`STIFFNESS_KINDS`.
+        damping: parameterization of D, one of :data:`DAMPING_KINDS`.
+        initial_stiffness: K everywhere at the start [N/m per row]; None: the paper's K.
+        hidden: hidden units of the network parameterizations.
+        distance_scale: φ scale [m] of the contact-network features (φ/scale, clamped to ±10).
+        epochs: at most this many passes over the training set.
+        batch_size: transitions per Adam step.
+        lr: Adam's learning rate.
+        patience: stop after this many epochs without a better validation loss.
+        seed: seed of the initialization and the batch order.
+    """
+
+    stiffness: str = "contact_network"
+    damping: str = "relative"
+    initial_stiffness: float | None = None
+    hidden: int = 32
+    distance_scale: float = 0.01
+    epochs: int = 200
+    batch_size: int = 512
+    lr: float = 1e-2
+    patience: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stiffness not in STIFFNESS_KINDS:
+            raise ValueError(f"stiffness must be one of {STIFFNESS_KINDS}, got {self.stiffness!r}")
+        if self.damping not in DAMPING_KINDS:
+            raise ValueError(f"damping must be one of {DAMPING_KINDS}, got {self.damping!r}")
+        if self.initial_stiffness is not None and not (
+            math.isfinite(self.initial_stiffness) and self.initial_stiffness > 0
+        ):
+            raise ValueError(f"initial_stiffness must be positive, got {self.initial_stiffness!r}")
+        for name in ("hidden", "epochs", "batch_size", "patience"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+
+
+def _parameterization(kind: str, value: float, meta: dict, config: FitConfig) -> Parameterization:
+    rows = meta["slots"] * meta["facets"]
+    if kind == "constant":
+        return Constant(value)
+    if kind == "per_row":
+        return PerRow(rows, value)
+    if kind == "contact_network":
+        return ContactNetwork(config.hidden, value, config.distance_scale)
+    if kind == "state_network":
+        return StateNetwork(meta["nq"], rows, hidden=config.hidden, value=value)
+    return ObjectContactNetwork(meta["facets"], config.hidden, value, config.distance_scale)
+
+
+def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
+    """The scene's model (γ, facets of ``meta``) with the learnable K and D of ``config``."""
+    torch.manual_seed(config.seed)
+    value = config.initial_stiffness or meta["paper_stiffness"]
+    stiffness = _parameterization(config.stiffness, value, meta, config)
+    if config.damping == "paper":
+        damping = Relative(0.1, learnable=False)
+    elif config.damping == "relative":
+        damping = Relative(0.1)
+    elif config.damping == "none":
+        damping = None
+    else:
+        damping = _parameterization(config.damping, 0.1 * value, meta, config)
+    return ComplementarityFree(stiffness, damping, gamma=meta["gamma"], facets=meta["facets"])
+
+
+def constant_model(stiffness: float, meta: dict) -> ComplementarityFree:
+    """The paper's model of the scene at constant K = ``stiffness``: D = 0.1·K, fixed."""
+    return ComplementarityFree(
+        Constant(stiffness, learnable=False),
+        Relative(0.1, learnable=False),
+        gamma=meta["gamma"],
+        facets=meta["facets"],
+    )
+
+
+def system_terms(meta: dict, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Q (nv,)`` and ``b (..., nv) = b0 + B·u`` of the dataset's quasi-dynamic system."""
+    system = meta["system"]
+    kw = {"dtype": u.dtype, "device": u.device}
+    B = torch.tensor(system["B"], **kw)
+    b = torch.tensor(system["b0"], **kw) + u @ B.T
+    return torch.tensor(system["Q"], **kw), b
+
+
+def object_indices(joints: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Indices ``(n_obj, 7)`` in q and ``(n_obj, 6)`` in v of the free joints (the objects)."""
+    iq = iv = 0
+    q_index, v_index = [], []
+    for joint in JointLayout(joints).joints:
+        if joint == "free":
+            q_index.append(list(range(iq, iq + 7)))
+            v_index.append(list(range(iv, iv + 6)))
+        iq, iv = iq + JOINT_SIZES[joint][0], iv + JOINT_SIZES[joint][1]
+    if not q_index:
+        raise ValueError(f"joints must include a free joint (the object), got {joints}")
+    return torch.tensor(q_index), torch.tensor(v_index)
+
+
+@dataclass
+class StepData:
+    """The K-independent pieces of the CF step for N transitions (row ``i`` = one step).
+
+    Attributes:
+        q: ``(N, nq)`` state, for state-dependent K.
+        contacts: :class:`Contacts` ``(N, ...)``, for contact-dependent K.
+        gap: ``(N, m)`` J̃Q⁻¹b, each row's distance change without contact [m].
+        phi: ``(N, m)`` row distances φ̃ [m].
+        free: ``(N, n_obj·6)`` object velocity without contact ``(Q⁻¹b)ₒ/h``.
+        response: ``(N, n_obj·6, m)`` ``(Q⁻¹J̃ᵀ)ₒ/h``: object velocity per unit λ.
+        pose: ``(N, n_obj, 7)`` object poses at q; target: ``(N, n_obj, 7)`` recorded next.
+        h: the model's time step [s].
+    """
+
+    q: torch.Tensor
+    contacts: Contacts
+    gap: torch.Tensor
+    phi: torch.Tensor
+    free: torch.Tensor
+    response: torch.Tensor
+    pose: torch.Tensor
+    target: torch.Tensor
+    h: float
+
+    @classmethod
+    def from_transitions(
+        cls, transitions: Transitions, facets: int, dtype: torch.dtype = torch.float32
+    ) -> StepData:
+        """Precompute from :class:`~torchcontact.learn.data.Transitions` (in float64, then
+        stored as ``dtype``)."""
+        meta = transitions.meta
+        q_index, v_index = object_indices(meta["joints"])
+        contacts = transitions.contacts.to(torch.float64)
+        with validate_args(False):
+            jac, phi, _ = contacts.dual_rows(facets)
+        Q, b = system_terms(meta, transitions.u.to(torch.float64))
+        h = float(meta["h"])
+        free = b / Q  # Q⁻¹b (N, nv)
+        gap = (jac @ free.unsqueeze(-1)).squeeze(-1)
+        rows = v_index.flatten()
+        response = jac[..., rows].mT / Q[rows, None] / h
+        return cls(
+            q=transitions.q.to(dtype),
+            contacts=transitions.contacts.to(dtype),
+            gap=gap.to(dtype),
+            phi=phi.to(dtype),
+            free=(free[:, rows] / h).to(dtype),
+            response=response.to(dtype),
+            pose=transitions.q[:, q_index].to(dtype),
+            target=transitions.q_next[:, q_index].to(dtype),
+            h=h,
+        )
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    def select(self, index: torch.Tensor) -> StepData:
+        """Rows ``index`` (long indices or a bool mask)."""
+        tensors = {
+            f.name: getattr(self, f.name)[index]
+            for f in fields(self)
+            if f.name not in ("contacts", "h")
+        }
+        return StepData(contacts=select_contacts(self.contacts, index), h=self.h, **tensors)
+
+
+def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:
+    """Object poses ``(N, n_obj, 7)`` one step after ``data``'s states under ``model``."""
+    K, D = model.coefficients(data.contacts, data.q)
+    argument = -K * (data.gap + data.phi)
+    if D is not None:
+        argument = argument - D * data.gap / data.h
+    lam = softplus(argument, model.gamma)
+    velocity = data.free + (data.response @ lam.unsqueeze(-1)).squeeze(-1)
+    n_obj = data.pose.shape[-2]
+    layout = JointLayout(["free"] * n_obj)
+    poses = integrate(data.pose.flatten(-2), velocity, data.h, layout)
+    return poses.unflatten(-1, (n_obj, 7))
+
+
+def pose_errors(pose: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Position error ``‖p − p*‖`` [m] and quaternion error ``1 − ⟨q, q*⟩²`` of poses
+    ``(..., 7)``, each ``(...)``."""
+    position = position_cost(pose[..., :3], target[..., :3]).sqrt()
+    return position, quaternion_cost(pose[..., 3:], target[..., 3:]).clamp_min(0.0)
+
+
+def pose_loss(pose: torch.Tensor, target: torch.Tensor, weights: tuple[float, float]):
+    """Mean of ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` over poses ``(..., 7)``: the MPC's final
+    cost terms."""
+    position = position_cost(pose[..., :3], target[..., :3])
+    quaternion = quaternion_cost(pose[..., 3:], target[..., 3:])
+    return (weights[0] * position + weights[1] * quaternion).mean()
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit`.
+
+    Attributes:
+        model: the fitted model, holding the best validation state.
+        history: per epoch ``{"epoch", "train_loss", "val_loss"}``.
+        best_epoch: the epoch whose state was kept (0: the initial model).
+        val_loss: its validation loss.
+        seconds: wall time of the training loop.
+    """
+
+    model: ComplementarityFree
+    history: list[dict]
+    best_epoch: int
+    val_loss: float
+    seconds: float
+
+
+def _evaluate_loss(model, data: StepData, weights, batch: int = 8192) -> float:
+    total = 0.0
+    with torch.no_grad():
+        for start in range(0, len(data), batch):
+            part = data.select(torch.arange(start, min(start + batch, len(data))))
+            total += float(pose_loss(predict_poses(model, part), part.target, weights)) * len(part)
+    return total / max(len(data), 1)
+
+
+def fit(
+    model: ComplementarityFree,
+    train: StepData,
+    val: StepData,
+    weights: tuple[float, float],
+    config: FitConfig,
+    progress: bool = True,
+) -> FitResult:
+    """Train ``model``'s parameters on ``train`` by Adam on :func:`pose_loss` mini-batches.
+
+    Stops after ``config.epochs`` or ``config.patience`` epochs without a better loss on
+    ``val``; the model is left holding its best validation state.
+    """
+    if len(train) == 0 or len(val) == 0:
+        raise ValueError(f"train and val must be non-empty, got {len(train)} and {len(val)}")
+    parameters = [p for p in model.parameters() if p.requires_grad]
+    if not parameters:
+        raise ValueError("model has no learnable parameters")
+    dtype = train.gap.dtype
+    model = model.to(dtype)
+    optimizer = torch.optim.Adam(parameters, lr=config.lr)
+    generator = torch.Generator().manual_seed(config.seed)
+    start = time.perf_counter()
+    with validate_args(False):
+        best = _evaluate_loss(model, val, weights)
+        best_state, best_epoch, history = copy.deepcopy(model.state_dict()), 0, []
+        bar = tqdm(range(1, config.epochs + 1), desc="fit", disable=not progress, unit="epoch")
+        for epoch in bar:
+            order = torch.randperm(len(train), generator=generator)
+            running = 0.0
+            for first in range(0, len(train), config.batch_size):
+                batch = train.select(order[first : first + config.batch_size])
+                loss = pose_loss(predict_poses(model, batch), batch.target, weights)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                running += loss.item() * len(batch)
+            val_loss = _evaluate_loss(model, val, weights)
+            history.append(
+                {"epoch": epoch, "train_loss": running / len(train), "val_loss": val_loss}
+            )
+            bar.set_postfix(train=f"{running / len(train):.3g}", val=f"{val_loss:.3g}")
+            if val_loss < best:
+                best, best_epoch = val_loss, epoch
+                best_state = copy.deepcopy(model.state_dict())
+            elif epoch - best_epoch >= config.patience:
+                break
+    model.load_state_dict(best_state)
+    return FitResult(model, history, best_epoch, best, time.perf_counter() - start)
+
+
+def save_checkpoint(path: str | Path, model: ComplementarityFree, config: FitConfig, meta: dict):
+    """Write ``model``'s ``state_dict`` with ``config`` and the dataset ``meta`` atomically."""
+    payload = {
+        "version": CHECKPOINT_VERSION,
+        "config": asdict(config),
+        "meta": meta,
+        "state_dict": model.state_dict(),
+    }
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    return atomic_write(path, lambda f: f.write(buffer.getvalue()), binary=True)
+
+
+def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, dict]:
+    """Rebuild the model saved by :func:`save_checkpoint`: ``(model, config, meta)``."""
+    path = Path(path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as error:
+        raise ValueError(f"{path}: not a readable checkpoint ({error})") from None
+    if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
+        found = payload.get("version") if isinstance(payload, dict) else None
+        raise ValueError(
+            f"{path}: expected checkpoint version {CHECKPOINT_VERSION}, found {found!r}"
+        )
+    config = FitConfig(**payload["config"])
+    meta = payload["meta"]
+    model = build_model(config, meta)
+    state = payload["state_dict"]
+    dtype = next(iter(state.values())).dtype
+    model = model.to(dtype)
+    model.load_state_dict(state)
+    return model, config, meta

@@ -1,0 +1,277 @@
+"""``torchcontact learn-k``: learn K(q) and D(q) of a scene from MuJoCo rollouts and compare.
+
+The pipeline, one stage per line of :func:`run`::
+
+    collect(data_dir, scene, obj, ...)            # MuJoCo transitions (reused, resumed)
+    train, val, test = load(data_dir).split()    # by trajectory
+    sweep = sweep_constant(grid, val, detector)   # best constant K by 10-step rollouts
+    result = fit(model, train, val, ...)          # learned K(q), D(q) on the one-step loss
+    evaluation = ... paper K, best K, learned     # one step and 10-step rollouts on test
+
+Writes ``OUT/SCENE_OBJECT/results.json`` (everything measured), ``model.pt`` (the learned
+model's checkpoint, :func:`~torchcontact.learn.fit.load_checkpoint`) and ``history.csv``
+(losses per epoch); ``--json PATH`` writes the headline figures. Errors are means over the
+test windows; the combined error is the MPC's ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from torchcontact.learn.data import collect, load
+from torchcontact.learn.evaluate import (
+    log_grid,
+    one_step_error,
+    rollout_error,
+    still_error,
+    sweep_constant,
+)
+from torchcontact.learn.fit import (
+    DAMPING_KINDS,
+    STIFFNESS_KINDS,
+    FitConfig,
+    StepData,
+    build_model,
+    constant_model,
+    fit,
+    save_checkpoint,
+)
+from torchcontact.learn.policies import ACTIONS
+from torchcontact.learn.scenes import SCENES, make_scene
+from torchcontact.results import write_csv, write_json
+
+DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50}
+"""Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
+
+MODELS = ("paper_k", "best_constant_k", "learned")
+LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned": "learned"}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="torchcontact learn-k",
+        description="Learn the contact stiffness K(q) and damping D(q) from MuJoCo rollouts.",
+    )
+    add = parser.add_argument
+    add("--scene", choices=SCENES, default="trifinger")
+    add("--object", default="cube", help="an object of the scene's suite")
+    add("--task", default=None, help="the suite task whose sampler starts each trajectory")
+    add("--trajectories", type=int, default=400, help="trajectories used (collected if missing)")
+    add("--steps", type=int, default=None, help=f"steps per trajectory (default {DEFAULT_STEPS})")
+    add("--actions", choices=ACTIONS, default="mpc", help="action source")
+    add("--noise", type=float, default=None, help="exploration noise, fraction of the bound")
+    add("--no-compile", action="store_true", help="eager MPC while collecting")
+    add("--data", type=Path, default=None, help="dataset directory (default under --out)")
+    add("--stiffness", choices=STIFFNESS_KINDS, default="contact_network", help="K(q)")
+    add("--damping", choices=DAMPING_KINDS, default="contact_network", help="D(q)")
+    add("--hidden", type=int, default=32, help="hidden units of the networks")
+    add("--distance-scale", type=float, default=1e-4, help="φ feature scale [m]")
+    add("--epochs", type=int, default=300)
+    add("--batch-size", type=int, default=512)
+    add("--lr", type=float, default=3e-3)
+    add("--patience", type=int, default=40, help="early stopping patience [epochs]")
+    add(
+        "--sweep",
+        type=float,
+        nargs=3,
+        default=(1e-3, 1e2, 16),
+        metavar=("LOW", "HIGH", "N"),
+        help="constant-K grid: N log-spaced values",
+    )
+    add("--horizon", type=int, default=10, help="rollout steps of the evaluation")
+    add("--stride", type=int, default=5, help="a rollout starts every STRIDE steps")
+    add("--seed", type=int, default=0, help="data, split and fit seed")
+    add("--out", type=Path, default=Path("results/learn"))
+    add("--json", type=Path, default=None, help="write the headline figures here")
+    add("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride")
+    for name in positive:
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.trajectories < 3:
+        parser.error(f"--trajectories must be >= 3 (train, val, test), got {args.trajectories}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if not args.distance_scale > 0:
+        parser.error(f"--distance-scale must be positive, got {args.distance_scale}")
+    args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
+    if args.steps <= args.horizon:
+        parser.error(f"--steps must exceed --horizon ({args.horizon}), got {args.steps}")
+    low, high, count = args.sweep
+    if not (0 < low < high) or count < 2 or count != int(count):
+        parser.error(f"--sweep needs 0 < LOW < HIGH and an integer N >= 2, got {args.sweep}")
+    args.grid = log_grid(low, high, int(count))
+    name = f"{args.scene}_{Path(args.object).stem}"
+    args.results = args.out / name
+    if args.data is None:
+        args.data = args.out / "data" / f"{name}_{args.actions}_steps{args.steps}_seed{args.seed}"
+    return args
+
+
+def run(args: argparse.Namespace) -> dict:
+    """Collect, split, sweep, fit and evaluate; returns the record written to results.json."""
+    progress = not args.no_progress
+    collect(
+        args.data,
+        args.scene,
+        args.object,
+        trajectories=args.trajectories,
+        steps=args.steps,
+        actions=args.actions,
+        seed=args.seed,
+        task=args.task,
+        noise=args.noise,
+        progress=progress,
+        mpc_options={"compile": not args.no_compile},
+    )
+    transitions = load(args.data, args.trajectories)
+    meta = transitions.meta
+    splits = dict(zip(("train", "val", "test"), transitions.split(seed=args.seed), strict=True))
+    steps = {name: StepData.from_transitions(part, meta["facets"]) for name, part in splits.items()}
+    detector = make_scene(args.scene, args.object, meta["task"]).env.detector
+    weights = tuple(meta["pose_weights"])
+
+    sweep = sweep_constant(args.grid, splits["val"], detector, args.horizon, args.stride)
+    best_k = min(sweep, key=lambda row: row["combined"])["stiffness"]
+    config = FitConfig(
+        stiffness=args.stiffness,
+        damping=args.damping,
+        initial_stiffness=best_k,
+        hidden=args.hidden,
+        distance_scale=args.distance_scale,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        patience=args.patience,
+        seed=args.seed,
+    )
+    result = fit(build_model(config, meta), steps["train"], steps["val"], weights, config, progress)
+
+    models = {
+        "paper_k": constant_model(meta["paper_stiffness"], meta),
+        "best_constant_k": constant_model(best_k, meta),
+        "learned": result.model,
+    }
+    test = splits["test"]
+    window = (args.horizon, args.stride)
+    evaluation = {
+        key: {
+            "one_step": one_step_error(model, steps["test"], weights),
+            "rollout": rollout_error(model, test, detector, *window),
+            "rollout_robot_recorded": rollout_error(model, test, detector, *window, "recorded"),
+        }
+        for key, model in models.items()
+    }
+    args.results.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(args.results / "model.pt", result.model, config, meta)
+    write_csv(args.results / "history.csv", result.history)
+
+    def improvement(kind: str, statistic: str = "combined") -> float:
+        learned, best = (evaluation[key][kind][statistic] for key in ("learned", "best_constant_k"))
+        return 1.0 - learned / best
+
+    return {
+        **{f"rollout10_err_{key}": evaluation[key]["rollout"]["combined"] for key in MODELS},
+        "improvement_vs_best_constant": improvement("rollout"),
+        "improvement_vs_best_constant_median": improvement("rollout", "combined_median"),
+        **{
+            f"rollout10_robot_recorded_err_{key}": evaluation[key]["rollout_robot_recorded"][
+                "combined"
+            ]
+            for key in MODELS
+        },
+        "improvement_vs_best_constant_robot_recorded": improvement("rollout_robot_recorded"),
+        "fit_seconds": result.seconds,
+        "transitions": len(transitions),
+        "paper_k": meta["paper_stiffness"],
+        "best_constant_k": best_k,
+        "horizon": args.horizon,
+        "scene": args.scene,
+        "object": args.object,
+        "data": str(args.data),
+        "splits": {name: len(part) for name, part in splits.items()},
+        "fit": {
+            **asdict(config),
+            "best_epoch": result.best_epoch,
+            "epochs_run": len(result.history),
+        },
+        "sweep": sweep,
+        "evaluation": evaluation,
+        "still_object": still_error(test, args.horizon, args.stride),
+    }
+
+
+HEADLINE = (
+    *(f"rollout10_err_{key}" for key in MODELS),
+    "improvement_vs_best_constant",
+    "improvement_vs_best_constant_median",
+    *(f"rollout10_robot_recorded_err_{key}" for key in MODELS),
+    "improvement_vs_best_constant_robot_recorded",
+    "fit_seconds",
+    "transitions",
+    "paper_k",
+    "best_constant_k",
+    "horizon",
+)
+
+
+def print_table(record: dict, stiffness: str) -> None:
+    """The comparison table of one run."""
+    splits, fit_record, horizon = record["splits"], record["fit"], record["horizon"]
+    print(
+        f"{record['scene']} {record['object']}: {record['transitions']} transitions (train "
+        f"{splits['train']}, val {splits['val']}, test {splits['test']}), fit "
+        f"{record['fit_seconds']:.1f} s ({fit_record['epochs_run']} epochs, best "
+        f"{fit_record['best_epoch']})"
+    )
+    header = f"{'pos mm':>8s} {'ang °':>7s} {'combined':>9s}"
+    print(
+        f"{'':<16s} {'':>15s} {'one step':^26s} {f'{horizon}-step rollout':^26s} "
+        f"{'recorded robot':>14s}"
+    )
+    print(f"{'model':<16s} {'K':>15s} {header} {header} {'combined':>14s}")
+    ks = {
+        "paper_k": f"{record['paper_k']:g}",
+        "best_constant_k": f"{record['best_constant_k']:.3g}",
+        "learned": stiffness,
+    }
+    for key in MODELS:
+        parts = record["evaluation"][key]
+        cells = [
+            f"{part['pos_mm']:>8.2f} {part['angle_deg']:>7.2f} {part['combined']:>9.2e}"
+            for part in (parts["one_step"], parts["rollout"])
+        ]
+        recorded = parts["rollout_robot_recorded"]["combined"]
+        print(f"{LABELS[key]:<16s} {ks[key]:>15s} {cells[0]} {cells[1]} {recorded:>14.2e}")
+    still = record["still_object"]
+    print(
+        f"{'objects kept still':<32s} {'':>26s} {still['pos_mm']:>8.2f} "
+        f"{still['angle_deg']:>7.2f} {still['combined']:>9.2e}  (how far they really moved)"
+    )
+    windows = record["evaluation"]["learned"]["rollout"]["windows"]
+    print(
+        f"{horizon}-step combined error, learned vs best constant K ({windows} test windows): "
+        f"{100 * record['improvement_vs_best_constant']:.1f} % lower in the mean, "
+        f"{100 * record['improvement_vs_best_constant_median']:.1f} % in the median, "
+        f"{100 * record['improvement_vs_best_constant_robot_recorded']:.1f} % with the "
+        "recorded robot motion"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    torch.set_num_threads(1)
+    args = parse_args(argv)
+    record = run(args)
+    write_json(args.results / "results.json", record)
+    if args.json is not None:
+        write_json(args.json, {key: record[key] for key in HEADLINE})
+    print_table(record, args.stiffness)
+    print(f"wrote {args.results}/results.json, model.pt, history.csv")
+    return 0

@@ -1,0 +1,133 @@
+"""Action sources for data collection: a random reach-and-push policy and the paper's MPC.
+
+A policy is called as ``policy(q, contacts) -> u`` with the plant state ``q (nq,)`` and the
+contacts detected there, and returns ``u (n_u,)`` inside the scene's control box. Both draw
+from ``np.random.default_rng(seed)`` only, so a trajectory is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from pytorch_kinematics.transforms import quaternion_to_matrix
+
+from torchcontact.contacts import Contacts
+from torchcontact.learn.scenes import Scene
+
+ACTIONS = ("random", "mpc", "mixed")
+"""Action sources of a dataset; ``"mixed"`` alternates random (even ids) and MPC (odd ids)."""
+
+
+class ReachPolicy:
+    """Random reach and push: each fingertip heads for a random point of the object.
+
+    Every 10–30 steps each fingertip gets a new goal fixed in the object's frame: with
+    probability ``push`` a point inside the object's bounding box (the tip cannot reach it, so
+    it keeps pushing the object, following it as it moves), otherwise a point 1.5 extents from
+    the object's centre (the tip lets go). The joint step towards the goals is damped least
+    squares through the fingertip Jacobian, plus Ornstein–Uhlenbeck noise of standard
+    deviation ``noise`` × bound and step correlation ``correlation``, clipped to the box.
+
+    Args:
+        scene: the scene (its fingertip kinematics, control box and object shape).
+        seed: seed of the policy's random draws.
+        push: probability that a goal lies inside the object.
+        noise: noise standard deviation as a fraction of the control bound.
+        correlation: noise correlation between consecutive steps, in [0, 1).
+    """
+
+    segment = (10, 30)
+    damping = 1e-4  # [m²] of the damped least squares
+
+    def __init__(
+        self,
+        scene: Scene,
+        seed: int,
+        push: float = 0.8,
+        noise: float = 0.3,
+        correlation: float = 0.8,
+    ):
+        if not 0.0 <= push <= 1.0:
+            raise ValueError(f"push must be in [0, 1], got {push!r}")
+        if not noise >= 0.0:
+            raise ValueError(f"noise must be non-negative, got {noise!r}")
+        if not 0.0 <= correlation < 1.0:
+            raise ValueError(f"correlation must be in [0, 1), got {correlation!r}")
+        self.scene, self.push, self.correlation = scene, push, correlation
+        self.rng = np.random.default_rng(seed)
+        self.lower, self.upper = scene.control_bounds
+        self.sigma = noise * np.maximum(np.abs(self.lower), np.abs(self.upper))
+        vertices = scene.env.object.vertices
+        self.box = vertices.min(0), vertices.max(0)
+        self.n_tips = scene.fingertips(torch.as_tensor(scene.env.state())).shape[-2]
+        self.noise = np.zeros_like(self.lower)
+        self.steps_left = 0
+        self.goals = np.zeros((self.n_tips, 3))
+
+    def _new_goals(self) -> None:
+        low, high = self.box
+        inside = self.rng.uniform(low, high, (self.n_tips, 3))
+        direction = self.rng.standard_normal((self.n_tips, 3))
+        direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+        outside = 0.5 * (low + high) + 1.5 * (high - low).max() * direction
+        pushing = self.rng.uniform(size=(self.n_tips, 1)) < self.push
+        self.goals = np.where(pushing, inside, outside)
+        self.steps_left = int(self.rng.integers(*self.segment, endpoint=True))
+
+    def __call__(self, q: np.ndarray, contacts: Contacts) -> np.ndarray:
+        if self.steps_left == 0:
+            self._new_goals()
+        self.steps_left -= 1
+        state = torch.as_tensor(q, dtype=torch.float64)
+        rotation = quaternion_to_matrix(state[3:7]).numpy()
+        goals = q[:3] + self.goals @ rotation.T  # (n_tips, 3) world [m]
+        tips = self.scene.fingertips(state).detach().numpy()
+        jac = torch.func.jacrev(lambda x: self.scene.fingertips(x).reshape(-1))(state)
+        jac = jac[:, 7:].detach().numpy()  # (3·n_tips, n_u): robot coordinates only
+        error = (goals - tips).reshape(-1)
+        gram = jac @ jac.T + self.damping * np.eye(len(error))
+        step = jac.T @ np.linalg.solve(gram, error)
+        shock = self.rng.standard_normal(self.noise.shape)
+        self.noise = self.correlation * self.noise + np.sqrt(1 - self.correlation**2) * shock
+        return np.clip(step + self.sigma * self.noise, self.lower, self.upper)
+
+
+class MPCPolicy:
+    """The paper's MPC driving the object towards ``target``, plus Gaussian exploration noise.
+
+    Args:
+        scene: the scene whose MPC plans (its warm start is reset here).
+        seed: seed of the noise.
+        target: ``(7,)`` target object pose.
+        noise: noise standard deviation as a fraction of the control bound (0: none).
+    """
+
+    def __init__(self, scene: Scene, seed: int, target: np.ndarray, noise: float = 0.1):
+        if not noise >= 0.0:
+            raise ValueError(f"noise must be non-negative, got {noise!r}")
+        self.mpc = scene.mpc
+        self.mpc.reset()
+        self.rng = np.random.default_rng(seed)
+        self.lower, self.upper = scene.control_bounds
+        self.sigma = noise * np.maximum(np.abs(self.lower), np.abs(self.upper))
+        target = torch.as_tensor(target, dtype=self.mpc.dtype)
+        self.target_p, self.target_quat = target[:3], target[3:]
+
+    def __call__(self, q: np.ndarray, contacts: Contacts) -> np.ndarray:
+        state = torch.as_tensor(q, dtype=self.mpc.dtype)
+        plan = self.mpc.plan(state, contacts.to(self.mpc.dtype), self.target_p, self.target_quat)
+        u = plan.control.numpy() + self.sigma * self.rng.standard_normal(self.sigma.shape)
+        return np.clip(u, self.lower, self.upper)
+
+
+def make_policy(kind: str, scene: Scene, seed: int, target: np.ndarray, noise: float | None = None):
+    """The policy of action source ``kind`` (``"random"`` or ``"mpc"``) for one trajectory.
+
+    ``noise`` overrides the policy's default exploration noise (fraction of the bound).
+    """
+    options = {} if noise is None else {"noise": noise}
+    if kind == "random":
+        return ReachPolicy(scene, seed, **options)
+    if kind == "mpc":
+        return MPCPolicy(scene, seed, target, **options)
+    raise ValueError(f"kind must be 'random' or 'mpc', got {kind!r}")

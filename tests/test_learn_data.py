@@ -1,0 +1,170 @@
+"""Transition datasets: the file format round-trips, collection resumes, bad files fail clearly."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from torchcontact.learn import data
+from torchcontact.learn.data import DataFormatError, collect, load, read_manifest
+from torchcontact.learn.scenes import make_scene
+
+SCENE = {"scene": "trifinger", "obj": "cube", "steps": 6, "actions": "random"}
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("dataset")
+    collect(directory, trajectories=3, progress=False, **SCENE)
+    return directory
+
+
+def test_round_trip_keeps_shapes_metadata_and_transitions(dataset):
+    transitions = load(dataset)
+    meta = transitions.meta
+    nq, nv, nu, nc = meta["nq"], meta["nv"], meta["nu"], meta["slots"]
+    assert (meta["scene"], meta["object"], meta["h"], meta["facets"]) == (
+        "trifinger",
+        "cube",
+        0.1,
+        4,
+    )
+    assert (nq, nv, nu) == (16, 15, 9)
+    assert len(transitions) == 18
+    assert transitions.q.shape == transitions.q_next.shape == (18, nq)
+    assert transitions.u.shape == (18, nu) and transitions.q.dtype == torch.float64
+    assert transitions.contacts.jac_tangent.shape == (18, nc, 2, nv)
+    assert transitions.contacts.phi.dtype == torch.float32
+    assert transitions.trajectory.tolist() == [0] * 6 + [1] * 6 + [2] * 6
+    same = transitions.trajectory[1:] == transitions.trajectory[:-1]
+    assert torch.equal(transitions.q_next[:-1][same], transitions.q[1:][same])
+    lower, upper = (torch.tensor(meta[k], dtype=torch.float64) for k in ("u_lower", "u_upper"))
+    assert bool(((transitions.u >= lower) & (transitions.u <= upper)).all())
+    # The stored contacts are the scene detector's at q.
+    detector = make_scene("trifinger", "cube").env.detector
+    again = detector(transitions.q)
+    assert torch.equal(again.active, transitions.contacts.active)
+    torch.testing.assert_close(again.jac_normal, transitions.contacts.jac_normal)
+    manifest = read_manifest(dataset)
+    assert [e["file"] for e in manifest["trajectories"]] == [
+        f"trajectory_{i:05d}.npz" for i in range(3)
+    ]
+    Q, b0, B = (torch.tensor(manifest["system"][k]) for k in ("Q", "b0", "B"))
+    assert Q.shape == b0.shape == (nv,) and B.shape == (nv, nu)
+
+
+def test_random_actions_reach_and_move_the_object(dataset):
+    transitions = load(dataset)
+    robot_contact = transitions.contacts.active & (
+        transitions.contacts.frame[..., 0, 2].abs() < 0.95
+    )
+    assert bool(robot_contact.any())
+
+
+def test_split_is_by_trajectory_and_windows_stay_inside_one(dataset):
+    transitions = load(dataset)
+    parts = transitions.split(seed=1)
+    ids = [set(part.trajectory.tolist()) for part in parts]
+    assert sorted(i for group in ids for i in group) == [0, 1, 2]
+    windows = transitions.windows(4, stride=2)
+    assert windows.shape == (6, 4)  # starts 0 and 2 of each 6-step trajectory
+    assert bool((transitions.trajectory[windows] == transitions.trajectory[windows[:, :1]]).all())
+    assert bool((torch.diff(transitions.step[windows], dim=1) == 1).all())
+
+
+def test_collection_resumes_after_an_interruption(tmp_path, monkeypatch):
+    reference = tmp_path / "reference"
+    collect(reference, trajectories=3, progress=False, **SCENE)
+    interrupted = tmp_path / "interrupted"
+    original = data.collect_trajectory
+    calls = []
+
+    def flaky(scene, actions, seed, steps, noise=None):
+        calls.append(seed)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return original(scene, actions, seed, steps, noise)
+
+    monkeypatch.setattr(data, "collect_trajectory", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        collect(interrupted, trajectories=3, progress=False, **SCENE)
+    assert [e["id"] for e in read_manifest(interrupted)["trajectories"]] == [0, 1]
+    calls.clear()
+    collect(interrupted, trajectories=3, progress=False, **SCENE)
+    assert calls == [2]  # only the missing trajectory
+    first, second = load(reference), load(interrupted)
+    for key in ("q", "u", "q_next", "trajectory", "step"):
+        assert torch.equal(getattr(first, key), getattr(second, key)), key
+    assert torch.equal(first.contacts.jac_tangent, second.contacts.jac_tangent)
+    calls.clear()
+    collect(interrupted, trajectories=4, progress=False, **SCENE)  # appends one more
+    assert calls == [3] and len(load(interrupted)) == 24
+    assert len(load(interrupted, trajectories=3)) == 18
+
+
+def test_mixed_actions_alternate_random_and_mpc(tmp_path):
+    options = {"max_iter": 3, "compile": False}
+    collect(
+        tmp_path,
+        "trifinger",
+        trajectories=2,
+        steps=2,
+        actions="mixed",
+        progress=False,
+        mpc_options=options,
+    )
+    entries = read_manifest(tmp_path)["trajectories"]
+    assert [e["actions"] for e in entries] == ["random", "mpc"]
+
+
+def test_collecting_other_settings_into_a_dataset_is_refused(dataset):
+    with pytest.raises(DataFormatError, match=r"manifest.json.*'steps': \(6, 7\)"):
+        collect(dataset, "trifinger", trajectories=3, steps=7, progress=False)
+
+
+def _copy(source, target):
+    target.mkdir()
+    for path in source.iterdir():
+        (target / path.name).write_bytes(path.read_bytes())
+    return target
+
+
+def test_truncated_file_names_the_file(dataset, tmp_path):
+    broken = _copy(dataset, tmp_path / "broken")
+    path = broken / "trajectory_00001.npz"
+    path.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(DataFormatError, match=r"trajectory_00001\.npz: truncated"):
+        load(broken)
+
+
+def test_wrong_version_and_scene_are_named(dataset, tmp_path):
+    broken = _copy(dataset, tmp_path / "version")
+    manifest = json.loads((broken / "manifest.json").read_text())
+    (broken / "manifest.json").write_text(json.dumps({**manifest, "version": 99}))
+    with pytest.raises(DataFormatError, match="expected format version 1, found 99"):
+        load(broken)
+    other = _copy(dataset, tmp_path / "scene")
+    (other / "manifest.json").write_text(json.dumps({**manifest, "scene": "allegro"}))
+    with pytest.raises(DataFormatError, match=r"trajectory_00000\.npz.*'scene': \('trifinger'"):
+        load(other)
+
+
+def test_wrong_shape_names_the_array_and_the_expected_shape(dataset, tmp_path):
+    broken = _copy(dataset, tmp_path / "shape")
+    path = broken / "trajectory_00002.npz"
+    with np.load(path) as archive:
+        arrays = dict(archive)
+    arrays["jac_normal"] = arrays["jac_normal"][:, :-1]
+    np.savez(path, **arrays)
+    with pytest.raises(DataFormatError, match=r"trajectory_00002\.npz: array 'jac_normal' should"):
+        load(broken)
+
+
+def test_missing_manifest_or_file_is_reported(dataset, tmp_path):
+    with pytest.raises(DataFormatError, match="no dataset manifest"):
+        load(tmp_path)
+    broken = _copy(dataset, tmp_path / "missing")
+    (broken / "trajectory_00000.npz").unlink()
+    with pytest.raises(DataFormatError, match=r"trajectory_00000\.npz: trajectory file missing"):
+        load(broken)

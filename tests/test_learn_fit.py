@@ -1,0 +1,130 @@
+"""Fitting K and D: the precomputed step is the model's, a known K is recovered, checkpoints."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from torchcontact.integrate import JointLayout, integrate
+from torchcontact.learn.data import collect, load
+from torchcontact.learn.evaluate import one_step_error, rollout_error, sweep_constant
+from torchcontact.learn.fit import (
+    STIFFNESS_KINDS,
+    FitConfig,
+    StepData,
+    build_model,
+    constant_model,
+    fit,
+    load_checkpoint,
+    predict_poses,
+    save_checkpoint,
+    system_terms,
+)
+from torchcontact.learn.scenes import make_scene
+
+
+@pytest.fixture(scope="module")
+def transitions(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("fit")
+    collect(directory, "trifinger", trajectories=4, steps=12, progress=False)
+    return load(directory)
+
+
+@pytest.mark.parametrize("kind", STIFFNESS_KINDS)
+def test_precomputed_step_equals_the_model(transitions, kind):
+    meta = transitions.meta
+    model = build_model(FitConfig(stiffness=kind, damping=kind), meta).double()
+    data = StepData.from_transitions(transitions, meta["facets"], torch.float64)
+    Q, b = system_terms(meta, transitions.u)
+    v = model(Q, b, transitions.contacts.to(torch.float64), meta["h"], q=transitions.q)
+    expected = integrate(transitions.q, v, meta["h"], JointLayout(meta["joints"]))[:, :7]
+    torch.testing.assert_close(predict_poses(model, data)[:, 0], expected)
+
+
+def _synthetic(transitions, stiffness):
+    """The dataset with q_next replaced by the paper model's prediction at K = stiffness."""
+    meta = transitions.meta
+    model = constant_model(stiffness, meta).double()
+    Q, b = system_terms(meta, transitions.u)
+    with torch.no_grad():
+        v = model(Q, b, transitions.contacts.to(torch.float64), meta["h"])
+    q_next = integrate(transitions.q, v, meta["h"], JointLayout(meta["joints"]))
+    return dataclasses.replace(transitions, q_next=q_next)
+
+
+def test_fit_recovers_a_known_constant_stiffness(transitions):
+    synthetic = _synthetic(transitions, 2.5)
+    train, val, _ = synthetic.split(seed=0)
+    meta = synthetic.meta
+    config = FitConfig(
+        stiffness="constant", damping="paper", epochs=150, batch_size=64, lr=0.05, patience=150
+    )
+    model = build_model(config, meta)
+    assert model.stiffness.log_value.detach().exp().item() == pytest.approx(0.5)
+    result = fit(
+        model,
+        StepData.from_transitions(train, meta["facets"]),
+        StepData.from_transitions(val, meta["facets"]),
+        tuple(meta["pose_weights"]),
+        config,
+        progress=False,
+    )
+    assert result.model.stiffness.log_value.detach().exp().item() == pytest.approx(2.5, rel=0.03)
+    assert result.val_loss <= min(row["val_loss"] for row in result.history)
+
+
+def test_learned_network_beats_the_initial_model_on_its_training_loss(transitions):
+    meta = transitions.meta
+    config = FitConfig(stiffness="contact_network", damping="relative", epochs=5, patience=5)
+    data = StepData.from_transitions(transitions, meta["facets"])
+    weights = tuple(meta["pose_weights"])
+    result = fit(build_model(config, meta), data, data, weights, config, progress=False)
+    initial = one_step_error(build_model(config, meta), data, meta["pose_weights"])
+    learned = one_step_error(result.model, data, meta["pose_weights"])
+    assert learned["combined"] <= initial["combined"]
+
+
+def test_checkpoint_round_trip_and_bad_file(transitions, tmp_path):
+    meta = transitions.meta
+    config = FitConfig(stiffness="object_network", damping="contact_network", hidden=8)
+    model = build_model(config, meta)
+    with torch.no_grad():
+        for parameter in model.parameters():
+            parameter.add_(0.1 * torch.randn_like(parameter))
+    path = save_checkpoint(tmp_path / "model.pt", model, config, meta)
+    loaded, loaded_config, loaded_meta = load_checkpoint(path)
+    assert loaded_config == config and loaded_meta == meta
+    data = StepData.from_transitions(transitions, meta["facets"])
+    torch.testing.assert_close(predict_poses(loaded, data), predict_poses(model, data))
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(ValueError, match="model.pt: not a readable checkpoint"):
+        load_checkpoint(path)
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="stiffness must be one of"):
+        FitConfig(stiffness="spline")
+    with pytest.raises(ValueError, match="damping must be one of"):
+        FitConfig(damping="relative_to_nothing")
+    with pytest.raises(ValueError, match="epochs must be a positive integer"):
+        FitConfig(epochs=0)
+
+
+def test_one_step_rollout_equals_the_one_step_error(transitions):
+    """A 1-step rollout re-detects contacts at the recorded states: the same prediction."""
+    meta = transitions.meta
+    detector = make_scene("trifinger", "cube").env.detector
+    model = constant_model(0.5, meta)
+    rollout = rollout_error(model, transitions, detector, horizon=1, stride=1)
+    data = StepData.from_transitions(transitions, meta["facets"], torch.float64)
+    one_step = one_step_error(model, data, meta["pose_weights"])
+    assert rollout["windows"] == len(transitions)
+    for key in ("pos_mm", "angle_deg", "combined"):
+        assert rollout[key] == pytest.approx(one_step[key], rel=1e-4, abs=1e-6)
+    recorded = rollout_error(model, transitions, detector, horizon=1, stride=1, robot="recorded")
+    assert recorded == rollout  # after one step only the next step would see the robot reset
+    with pytest.raises(ValueError, match="robot must be"):
+        rollout_error(model, transitions, detector, robot="teleported")
+    sweep = sweep_constant([0.1, 1.0], transitions, detector, horizon=3, stride=3)
+    assert [row["stiffness"] for row in sweep] == [0.1, 1.0]
+    assert all(row["windows"] == 16 for row in sweep)  # steps 0, 3, 6, 9 of 4 trajectories
