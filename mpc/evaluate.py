@@ -50,7 +50,7 @@ SUMMARY_KEYS = (
 
 DEFAULT_MODEL = "complementarity_free"
 
-LEGACY_DEFAULTS = {"model": DEFAULT_MODEL}
+LEGACY_DEFAULTS = {"model": DEFAULT_MODEL, "learned": None}
 """Values of configuration keys that records written before the key existed lack."""
 
 
@@ -69,12 +69,19 @@ class TrialConfig:
     stiffness: float | None  # K of the complementarity-free model; None for the QP
     model: str = DEFAULT_MODEL
     relaxation: float | None = None  # κ of the QP; None for the complementarity-free model
+    learned: str | None = None  # a learn-k checkpoint whose K(q), D(q) the MPC plans with
+
+    @property
+    def variant(self) -> str:
+        """The environment, tagged with a non-default contact model: ``trifinger_qp``."""
+        if self.learned is not None:
+            return f"{self.env}_learned"
+        return self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
 
     @property
     def name(self) -> str:
         """File stem of the trial's record (a mesh path contributes its file stem)."""
-        env = self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
-        return f"{env}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
+        return f"{self.variant}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
 
 
 def run_trial(
@@ -250,6 +257,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=None,
         help=f"the paper's κ in λ∘g = κ (qp); default {PAPER_RELAXATION:g}",
     )
+    parser.add_argument(
+        "--learned",
+        type=Path,
+        default=None,
+        help="a `torchcontact learn-k` checkpoint (model.pt): plan with its learned K(q), D(q) "
+        "(complementarity_free; results in results/ENV_learned)",
+    )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
     parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
@@ -267,6 +281,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         )
     if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
         parser.error(f"--relaxation must be positive and is for qp, got {args.relaxation}")
+    if args.learned is not None and (qp or args.stiffness is not None):
+        parser.error(
+            "--learned replaces the constant K of complementarity_free: drop --model qp "
+            "and --stiffness"
+        )
+    if args.learned is not None and not args.learned.is_file():
+        parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
     for name in ("trials", "workers", "max_iter"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
@@ -279,10 +300,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(str(error))
     if qp:
         args.relaxation = PAPER_RELAXATION if args.relaxation is None else args.relaxation
+    elif args.learned is not None:
+        args.learned = str(args.learned.resolve())
     else:
         args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
-    default_out = args.env if args.model == DEFAULT_MODEL else f"{args.env}_{args.model}"
-    args.out = Path("results") / default_out if args.out is None else args.out
+    variant = TrialConfig(
+        args.env, "", "", 0, 1, 1, False, "", None, args.model, None, args.learned
+    )
+    args.out = Path("results") / variant.variant if args.out is None else args.out
     return args
 
 
@@ -303,6 +328,7 @@ def _run_job(job: Job) -> dict:
     torch.set_num_threads(1)
     c = job.config
     key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness, c.model, c.relaxation)
+    key += (c.learned,)
     if _CACHE.get("key") != key:
         suite = SUITES[c.env]
         _CACHE.clear()
@@ -314,7 +340,7 @@ def _run_job(job: Job) -> dict:
             env=suite.make_env(c.object),
             mpc=suite.make_mpc(
                 c.object,
-                c.stiffness,
+                suite.stiffness if c.learned is not None else c.stiffness,  # then replaced
                 model=c.model,
                 relaxation=c.relaxation,
                 max_iter=c.max_iter,
@@ -322,12 +348,22 @@ def _run_job(job: Job) -> dict:
                 dtype=getattr(torch, c.dtype),
             ),
         )
+        if c.learned is not None:
+            _CACHE["mpc"].model = learned_model(c.learned, getattr(torch, c.dtype))
     frames = [] if job.video is not None else None
     record = run_trial(c, _CACHE["env"], _CACHE["mpc"], frames)
     write_json(job.path, record)
     if frames:
         save_gif(frames, job.video)
     return record
+
+
+def learned_model(path: str | Path, dtype: torch.dtype):
+    """The complementarity-free model of a ``learn-k`` checkpoint, frozen, in ``dtype``."""
+    from torchcontact.learn.fit import load_checkpoint  # learn builds on mpc: import on use
+
+    model, _, _ = load_checkpoint(path)
+    return model.to(dtype).requires_grad_(False)
 
 
 def _finished(path: Path, config: TrialConfig) -> dict | None:
@@ -361,6 +397,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.stiffness,
                 args.model,
                 args.relaxation,
+                args.learned,
             )
             path = trials_dir / f"{config.name}.json"
             record = _finished(path, config)
@@ -370,7 +407,12 @@ def main(argv: list[str] | None = None) -> int:
             video = args.out / f"{config.name}.gif" if args.video and seed == 0 else None
             jobs.append(Job(config, path, video))
     qp = args.model == "qp"
-    about = f"relaxed QP, paper's κ = {args.relaxation:g}" if qp else f"K = {args.stiffness:g}"
+    if qp:
+        about = f"relaxed QP, paper's κ = {args.relaxation:g}"
+    elif args.learned is not None:
+        about = f"learned K(q), D(q) from {args.learned}"
+    else:
+        about = f"K = {args.stiffness:g}"
     print(f"MPC through the {args.model} model ({about})")
     print(TABLE_HEADER)
     for record in done.values():
@@ -398,6 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     records.sort(key=lambda r: (args.pairs.index((r["task"], r["object"])), r["seed"]))
     summary = summarize(records)
     summary["model"], summary["relaxation"] = args.model, args.relaxation
+    summary["learned"] = args.learned
     summary["pairs"] = {
         f"{task} {obj}": summarize([r for r in records if (r["task"], r["object"]) == (task, obj)])
         for task, obj in args.pairs

@@ -3,9 +3,11 @@
 import math
 
 import pytest
+import torch
 
 from torchcontact.cli import main
 from torchcontact.learn.fit import load_checkpoint
+from torchcontact.mpc.evaluate import learned_model
 from torchcontact.results import read_json
 
 HEADLINE = (
@@ -40,6 +42,31 @@ def test_tiny_learn_k_run(tmp_path, capsys):
     # A rerun reuses the collected data.
     assert main(argv) == 0
     assert "24 transitions" in capsys.readouterr().out
+    # The checkpoint drives the closed loop: the MPC plans with the learned K(q), D(q).
+    checkpoint = tmp_path / "trifinger_cube" / "model.pt"
+    run = ["run", "trifinger", "--object", "cube", "--trials", "1", "--max-steps", "3"]
+    run += ["--learned", str(checkpoint), "--no-compile", "--no-progress"]
+    assert main([*run, "--out", str(tmp_path / "loop"), "--json", str(tmp_path / "loop.json")]) == 0
+    assert "learned K(q), D(q)" in capsys.readouterr().out
+    summary = read_json(tmp_path / "loop.json")
+    assert summary["learned"] == str(checkpoint.resolve()) and summary["trials"] == 1
+    trial = read_json(tmp_path / "loop" / "trials" / "trifinger_learned_in-hand_cube_seed0.json")
+    assert trial["learned"] == str(checkpoint.resolve()) and trial["stiffness"] is None
+    assert trial["steps"] == 3
+    planned = learned_model(checkpoint, torch.float64)
+    assert not any(p.requires_grad for p in planned.parameters())
+    for a, b in zip(planned.state_dict().values(), model.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b.to(a.dtype))
+
+
+def test_run_rejects_bad_learned_options(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "trifinger", "--learned", str(tmp_path / "missing.pt")])
+    assert "--learned must be an existing checkpoint" in capsys.readouterr().err
+    (tmp_path / "model.pt").write_bytes(b"")
+    with pytest.raises(SystemExit):
+        main(["run", "trifinger", "--learned", str(tmp_path / "model.pt"), "--model", "qp"])
+    assert "--learned replaces the constant K" in capsys.readouterr().err
 
 
 def test_bad_options_are_rejected(capsys):
