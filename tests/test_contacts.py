@@ -1,5 +1,6 @@
 """Contacts: padding, dtype moves, dual-cone rows and the split of row impulses."""
 
+import dataclasses
 import math
 
 import pytest
@@ -40,6 +41,19 @@ def random_contacts(
 def test_facet_directions_four_are_exact_axes():
     expected = torch.tensor([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]], dtype=torch.float64)
     assert torch.equal(facet_directions(4, torch.float64), expected)
+
+
+def test_facet_directions_first_built_under_inference_mode_still_serve_autograd():
+    from torchcontact.contacts import _facet_directions
+
+    _facet_directions.cache_clear()
+    with torch.inference_mode():
+        facet_directions(5, torch.float64)  # cached here
+    c = random_contacts(3, 4)
+    jac_tangent = c.jac_tangent.clone().requires_grad_()
+    rows, _, _ = dataclasses.replace(c, jac_tangent=jac_tangent).dual_rows(5)
+    rows.sum().backward()  # saves the directions: an inference tensor would be refused
+    assert torch.isfinite(jac_tangent.grad).all()
 
 
 @pytest.mark.parametrize("facets", [3, 4, 8, 16])

@@ -28,11 +28,14 @@ def facet_directions(facets: int, dtype=None, device=None) -> torch.Tensor:
 
 @functools.lru_cache(maxsize=64)
 def _facet_directions(facets: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    angles = torch.arange(facets, dtype=torch.float64) * (2 * math.pi / facets)
-    directions = torch.stack([torch.cos(angles), torch.sin(angles)], dim=-1)
-    # Snap round-off (cos(π/2) = 6e-17) so the 4-facet rows are exactly ±t₁, ±t₂.
-    directions = torch.where(directions.abs() < 1e-12, torch.zeros_like(directions), directions)
-    return directions.to(dtype=dtype, device=device)
+    # A normal tensor even on a first call under inference_mode: the cached one is later used
+    # in autograd, which refuses inference tensors.
+    with torch.inference_mode(False):
+        angles = torch.arange(facets, dtype=torch.float64) * (2 * math.pi / facets)
+        directions = torch.stack([torch.cos(angles), torch.sin(angles)], dim=-1)
+        # Snap round-off (cos(π/2) = 6e-17) so the 4-facet rows are exactly ±t₁, ±t₂.
+        directions = torch.where(directions.abs() < 1e-12, torch.zeros_like(directions), directions)
+        return directions.to(dtype=dtype, device=device)
 
 
 @dataclass(frozen=True)
