@@ -51,6 +51,15 @@ SUMMARY_KEYS = (
 DEFAULT_MODEL = "complementarity_free"
 
 LEGACY_DEFAULTS = {"model": DEFAULT_MODEL, "learned": None}
+
+
+def variant_name(env: str, model: str, learned: str | None) -> str:
+    """The environment tagged with a non-default contact model: ``trifinger_qp``."""
+    if learned is not None:
+        return f"{env}_learned"
+    return env if model == DEFAULT_MODEL else f"{env}_{model}"
+
+
 """Values of configuration keys that records written before the key existed lack."""
 
 
@@ -72,16 +81,10 @@ class TrialConfig:
     learned: str | None = None  # a learn-k checkpoint whose K(q), D(q) the MPC plans with
 
     @property
-    def variant(self) -> str:
-        """The environment, tagged with a non-default contact model: ``trifinger_qp``."""
-        if self.learned is not None:
-            return f"{self.env}_learned"
-        return self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
-
-    @property
     def name(self) -> str:
         """File stem of the trial's record (a mesh path contributes its file stem)."""
-        return f"{self.variant}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
+        variant = variant_name(self.env, self.model, self.learned)
+        return f"{variant}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
 
 
 def run_trial(
@@ -304,10 +307,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.learned = str(args.learned.resolve())
     else:
         args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
-    variant = TrialConfig(
-        args.env, "", "", 0, 1, 1, False, "", None, args.model, None, args.learned
-    )
-    args.out = Path("results") / variant.variant if args.out is None else args.out
+    variant = variant_name(args.env, args.model, args.learned)
+    args.out = Path("results") / variant if args.out is None else args.out
     return args
 
 

@@ -74,7 +74,7 @@ def paper_relaxation(h: float, kappa: float = PAPER_RELAXATION) -> float:
     return _check_relaxation(kappa) * float(h) ** 2
 
 
-RELAXATION = 5e-6
+RELAXATION = PAPER_RELAXATION * 0.1**2  # paper_relaxation(0.1)
 """Default κ in ``β∘s = κ`` [N·m]: the paper's 5e-4 at its h = 0.1 s (:func:`paper_relaxation`)."""
 
 CENTERING = 0.1
