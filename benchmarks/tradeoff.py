@@ -1,22 +1,40 @@
-"""Speed-accuracy trade-off of the contact models against MuJoCo, single thread.
+"""Speed-accuracy trade-off, single thread: the contact models, then the MPC's settings.
 
-    python benchmarks/tradeoff.py                    # every scene and setting (~7 min)
-    python benchmarks/tradeoff.py --quick --out /tmp/tradeoff
+    python benchmarks/tradeoff.py                      # both levels, every figure and table
+    python benchmarks/tradeoff.py --level model [--quick --out /tmp/tradeoff]
+    python benchmarks/tradeoff.py --level mpc [--env trifinger --trials 3 --workers 2]
 
-Prints a table and the dominance summary; writes tradeoff.csv, tradeoff.json, tradeoff.md and
-pareto_one_step.png, pareto_h10.png, pareto_traj.png (default under results/tradeoff/); see
-``torchcontact.learn.tradeoff`` for the scenes, settings, errors and timed region.
+Model level (``torchcontact.learn.tradeoff``, ~7 min): one-step and 10-step prediction error
+against MuJoCo and time per step of every contact-model setting; writes tradeoff.csv/.json/.md
+and pareto_*.png under results/tradeoff/. MPC level (``torchcontact.mpc.tradeoff``, about an
+hour on two workers, resumable): closed-loop success, final errors and median solve time of
+each solver setting and the presets; writes mpc_tradeoff.csv/.json/.md and mpc_pareto_*.png
+under results/tradeoff/mpc/. Arguments after ``--level`` go to that level.
 """
 
 import os
+import sys
 
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
 
 import torch  # noqa: E402
 
-from torchcontact.learn.tradeoff import main  # noqa: E402
+from torchcontact.learn import tradeoff as model_level  # noqa: E402
+from torchcontact.mpc import tradeoff as mpc_level  # noqa: E402
 
-torch.set_num_threads(1)
+LEVELS = {"model": model_level.main, "mpc": mpc_level.main}
+
+
+def main(argv: list[str]) -> int:
+    torch.set_num_threads(1)
+    if argv[:1] != ["--level"]:
+        if argv:
+            raise SystemExit(f"usage: {__doc__.strip().splitlines()[2].strip()} (got {argv})")
+        return max(run([]) for run in LEVELS.values())
+    if len(argv) < 2 or argv[1] not in LEVELS:
+        raise SystemExit(f"--level must be one of {list(LEVELS)}, got {argv[1:2]}")
+    return LEVELS[argv[1]](argv[2:])
+
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(main(sys.argv[1:]))

@@ -76,7 +76,7 @@ from torchcontact.learn.evaluate import pose_metrics
 from torchcontact.learn.fit import object_indices, system_terms
 from torchcontact.learn.scenes import make_scene
 from torchcontact.model import AnitescuQP, ComplementarityFree, ContactModel
-from torchcontact.results import atomic_write, save_figure, write_csv, write_json
+from torchcontact.results import atomic_write, pareto_front, save_figure, write_csv, write_json
 from torchcontact.sim import ContactDetector
 from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import full_dynamic
@@ -647,22 +647,6 @@ def evaluate_scene(scene: Scene, settings: Sequence[Setting], size: Size, progre
 
 
 # --- Pareto fronts and dominance ------------------------------------------------------------
-
-
-def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
-    """Indices of the points ``(time, error)`` no other point dominates (both minimized), in
-    increasing time. A point is dominated by one no worse in both and better in one; points
-    with a NaN are never on the front; equal points are all kept."""
-    finite = [i for i, p in enumerate(points) if all(math.isfinite(x) for x in p)]
-    front = [
-        i
-        for i in finite
-        if not any(
-            points[j][0] <= points[i][0] and points[j][1] <= points[i][1] and points[j] != points[i]
-            for j in finite
-        )
-    ]
-    return sorted(front, key=lambda i: points[i])
 
 
 def _error(row: dict, metric: str) -> float:

@@ -34,6 +34,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import MPC_MODELS
+from torchcontact.mpc.presets import DEFAULT_PRESET, PRESETS, MPCSettings
 from torchcontact.mpc.suites import SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
@@ -50,7 +51,7 @@ SUMMARY_KEYS = (
 
 DEFAULT_MODEL = "complementarity_free"
 
-LEGACY_DEFAULTS = {"model": DEFAULT_MODEL, "learned": None}
+LEGACY_DEFAULTS = {"model": DEFAULT_MODEL, "learned": None, "memory": 8, "horizon": 4}
 
 
 def variant_name(env: str, model: str, learned: str | None) -> str:
@@ -79,6 +80,8 @@ class TrialConfig:
     model: str = DEFAULT_MODEL
     relaxation: float | None = None  # κ of the QP; None for the complementarity-free model
     learned: str | None = None  # a learn-k checkpoint whose K(q), D(q) the MPC plans with
+    memory: int = PRESETS[DEFAULT_PRESET].memory  # L-BFGS memory
+    horizon: int = PRESETS[DEFAULT_PRESET].horizon  # T
 
     @property
     def name(self) -> str:
@@ -239,7 +242,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--trials", type=int, default=tasks.TRIALS, help="seeds 0…trials−1")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
-    parser.add_argument("--max-iter", type=int, default=30, help="L-BFGS iterations per step")
+    parser.add_argument(
+        "--preset",
+        choices=tuple(PRESETS),
+        default=DEFAULT_PRESET,
+        help="solver settings from the measured speed-accuracy front (README 'Choosing "
+        "settings'); the options below override single values",
+    )
+    parser.add_argument("--max-iter", type=int, default=None, help="L-BFGS iterations per step")
+    parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
+    parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")
     parser.add_argument(
         "--model",
         choices=MPC_MODELS,
@@ -268,7 +280,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "(complementarity_free; results in results/ENV_learned)",
     )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
-    parser.add_argument("--dtype", choices=["float32", "float64"], default="float64")
+    parser.add_argument("--dtype", choices=["float32", "float64"], default=None)
     parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
     parser.add_argument(
         "--out", type=Path, default=None, help="default results/ENV (results/ENV_qp for qp)"
@@ -291,9 +303,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         )
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
-    for name in ("trials", "workers", "max_iter"):
-        if getattr(args, name) < 1:
+    for name in ("trials", "workers", "max_iter", "memory", "horizon"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    overrides = {
+        "max_iter": args.max_iter,
+        "memory": args.memory,
+        "horizon": args.horizon,
+        "dtype": args.dtype,
+        "compile": False if args.no_compile else None,
+    }
+    args.settings = dataclasses.replace(
+        PRESETS[args.preset], **{k: v for k, v in overrides.items() if v is not None}
+    )
     if args.max_steps is not None and args.max_steps < 1:
         parser.error(f"--max-steps must be >= 1, got {args.max_steps}")
     suite = SUITES[args.env]
@@ -329,7 +351,7 @@ def _run_job(job: Job) -> dict:
     torch.set_num_threads(1)
     c = job.config
     key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness, c.model, c.relaxation)
-    key += (c.learned,)
+    key += (c.learned, c.memory, c.horizon)
     if _CACHE.get("key") != key:
         suite = SUITES[c.env]
         _CACHE.clear()
@@ -345,6 +367,8 @@ def _run_job(job: Job) -> dict:
                 model=c.model,
                 relaxation=c.relaxation,
                 max_iter=c.max_iter,
+                memory=c.memory,
+                horizon=c.horizon,
                 compile=c.compile,
                 dtype=getattr(torch, c.dtype),
             ),
@@ -381,24 +405,27 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     args = parse_args(argv)
     suite = SUITES[args.env]
+    settings: MPCSettings = args.settings
     trials_dir = args.out / "trials"
     done: dict[TrialConfig, dict] = {}
     jobs: list[Job] = []
     for task, obj in args.pairs:
         for seed in range(args.trials):
             config = TrialConfig(
-                args.env,
-                task,
-                obj,
-                seed,
-                args.max_steps or suite.criterion.max_steps,
-                args.max_iter,
-                not args.no_compile,
-                args.dtype,
-                args.stiffness,
-                args.model,
-                args.relaxation,
-                args.learned,
+                env=args.env,
+                task=task,
+                object=obj,
+                seed=seed,
+                max_steps=args.max_steps or suite.criterion.max_steps,
+                max_iter=settings.max_iter,
+                compile=settings.compile,
+                dtype=settings.dtype,
+                stiffness=args.stiffness,
+                model=args.model,
+                relaxation=args.relaxation,
+                learned=args.learned,
+                memory=settings.memory,
+                horizon=settings.horizon,
             )
             path = trials_dir / f"{config.name}.json"
             record = _finished(path, config)
@@ -414,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
         about = f"learned K(q), D(q) from {args.learned}"
     else:
         about = f"K = {args.stiffness:g}"
-    print(f"MPC through the {args.model} model ({about})")
+    print(f"MPC through the {args.model} model ({about}); solver {settings.label}")
     print(TABLE_HEADER)
     for record in done.values():
         tqdm.write(_table_row(record))
@@ -442,6 +469,9 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarize(records)
     summary["model"], summary["relaxation"] = args.model, args.relaxation
     summary["learned"] = args.learned
+    # the preset's name only when no option overrode it
+    summary["preset"] = args.preset if settings == PRESETS[args.preset] else None
+    summary["settings"] = dataclasses.asdict(settings)
     summary["pairs"] = {
         f"{task} {obj}": summarize([r for r in records if (r["task"], r["object"]) == (task, obj)])
         for task, obj in args.pairs

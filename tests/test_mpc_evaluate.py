@@ -60,13 +60,19 @@ def test_each_model_has_its_default_output_folder():
     assert parse_args(["fingertips", "--model", "qp"]).out == Path("results/fingertips_qp")
 
 
-def test_records_written_before_the_model_option_still_resume(tmp_path, monkeypatch):
+def test_records_written_before_the_model_and_solver_options_still_resume(tmp_path, monkeypatch):
     out = tmp_path / "out"
     main([*ARGS, *FAST, "--out", str(out)])
     path = out / "trials" / "fingertips_rotation_cube_seed0.json"
     record = json.loads(path.read_text())
     path.write_text(
-        json.dumps({k: v for k, v in record.items() if k not in ("model", "relaxation")})
+        json.dumps(
+            {
+                k: v
+                for k, v in record.items()
+                if k not in ("model", "relaxation", "memory", "horizon")
+            }
+        )
     )
     monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: pytest.fail("run again"))
     assert main([*ARGS, *FAST, "--out", str(out)]) == 0
@@ -83,6 +89,9 @@ def test_records_written_before_the_model_option_still_resume(tmp_path, monkeypa
         (["--model", "qp", "--stiffness", "1"], "--stiffness"),
         (["--relaxation", "1e-3"], "--relaxation"),
         (["--model", "qp", "--relaxation", "0"], "--relaxation"),
+        (["--preset", "fastest"], "--preset"),
+        (["--horizon", "0"], "--horizon"),
+        (["--memory", "0"], "--memory"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, capsys, bad, message):

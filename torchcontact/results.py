@@ -5,9 +5,10 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,3 +64,17 @@ def write_csv(path: str | Path, rows: Iterable[Mapping[str, Any]]) -> Path:
 def save_figure(figure, path: str | Path, dpi: int = 120) -> Path:
     """Save a matplotlib figure as PNG atomically."""
     return atomic_write(path, lambda f: figure.savefig(f, format="png", dpi=dpi), binary=True)
+
+
+def pareto_front(points: Sequence[Sequence[float]]) -> list[int]:
+    """Indices of the points (tuples of objectives, all minimized) that no other point
+    dominates, in increasing order of the points. A point is dominated by one no worse in every
+    objective and better in one; points with a NaN are never on the front; equal points are all
+    kept."""
+    finite = [i for i, p in enumerate(points) if all(math.isfinite(x) for x in p)]
+
+    def dominates(a, b) -> bool:
+        return all(x <= y for x, y in zip(a, b, strict=True)) and tuple(a) != tuple(b)
+
+    front = [i for i in finite if not any(dominates(points[j], points[i]) for j in finite)]
+    return sorted(front, key=lambda i: tuple(points[i]))

@@ -1,0 +1,290 @@
+"""MPC-level speed–accuracy trade-off: closed-loop success and error against solve time.
+
+For each solver setting of :data:`GRID` (one-at-a-time variations of ``balanced``: L-BFGS
+iterations and memory, horizon T, dtype, compiled or eager, plus the presets) and each
+environment of :data:`PAIRS` (fingertip cube rotation and in-air, TriFinger cube, foam brick,
+stick), runs ``trials`` closed-loop trials with ``torchcontact run`` (so each trial is written
+atomically and an interrupted sweep resumes) and tabulates success rate, mean final errors and
+the median MPC solve time per step.
+
+A setting is on an environment's Pareto front when no other setting is at least as fast, at
+least as successful and at least as accurate in mean final angle, and better in one of them.
+
+Outputs under ``out`` (default ``results/tradeoff/mpc``): ``mpc_tradeoff.csv``, ``.json``,
+``.md`` (a table per environment, the front and where the presets lie) and
+``mpc_pareto_ENV.png`` (success and angle error against solve time, front and presets marked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from torchcontact.mpc import evaluate
+from torchcontact.mpc.presets import DEFAULT_PRESET, PRESETS, MPCSettings
+from torchcontact.results import (
+    atomic_write,
+    pareto_front,
+    read_json,
+    save_figure,
+    write_csv,
+    write_json,
+)
+
+
+def _grid() -> dict[str, MPCSettings]:
+    base = PRESETS[DEFAULT_PRESET]
+    variations = [
+        *(dict(max_iter=n) for n in (5, 10, 20, 50)),
+        *(dict(memory=m) for m in (3, 16)),
+        *(dict(horizon=t) for t in (2, 6, 8)),
+        dict(dtype="float32"),
+        dict(compile=False),
+    ]
+    settings = [base, *(dataclasses.replace(base, **v) for v in variations), *PRESETS.values()]
+    return {s.label: s for s in settings}  # labels are unique per settings: presets dedupe
+
+
+GRID: dict[str, MPCSettings] = _grid()
+"""The swept settings by label."""
+
+PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
+    "fingertips": (("rotation", "cube"), ("in-air", "cube")),
+    "trifinger": (("in-hand", "cube"), ("in-hand", "foam_brick"), ("in-hand", "stick")),
+}
+"""(task, object) pairs run per environment: an easy and a hard fingertip task, and TriFinger's
+easiest, a soft and its hardest object of the paper's set."""
+
+TRIALS = 10
+
+
+def _folder(label: str) -> str:
+    return label.replace(" ", "_")
+
+
+def run_sweep(
+    out: Path,
+    envs: Sequence[str],
+    labels: Sequence[str],
+    trials: int,
+    workers: int = 1,
+    max_steps: int | None = None,
+    progress: bool = True,
+) -> None:
+    """Run every (environment, setting, pair) not finished yet (``torchcontact run``)."""
+    units = [(env, label, pair) for env in envs for label in labels for pair in PAIRS[env]]
+    for env, label, (task, obj) in tqdm(units, desc="MPC settings × pairs", disable=not progress):
+        s = GRID[label]
+        argv = [env, "--task", task, "--object", obj, "--trials", str(trials)]
+        argv += ["--max-iter", str(s.max_iter), "--memory", str(s.memory)]
+        argv += ["--horizon", str(s.horizon), "--dtype", s.dtype, "--workers", str(workers)]
+        argv += ["--out", str(out / env / _folder(label)), "--no-progress"]
+        argv += [] if s.compile else ["--no-compile"]
+        argv += [] if max_steps is None else ["--max-steps", str(max_steps)]
+        evaluate.main(argv)
+
+
+def collect(out: Path, envs: Sequence[str], labels: Sequence[str], trials: int) -> list[dict]:
+    """One row per (environment, setting) from the trial records of the swept pairs."""
+    rows = []
+    for env in envs:
+        for label in labels:
+            settings = GRID[label]
+            folder = out / env / _folder(label) / "trials"
+            records = []
+            for task, obj in PAIRS[env]:
+                for seed in range(trials):
+                    path = folder / f"{env}_{task}_{obj}_seed{seed}.json"
+                    if not path.exists():
+                        raise FileNotFoundError(f"missing trial record {path}: run the sweep")
+                    record = read_json(path)
+                    if any(record[k] != v for k, v in dataclasses.asdict(settings).items()):
+                        raise ValueError(f"{path} was run with other settings than {label!r}")
+                    records.append(record)
+            summary = evaluate.summarize(records)
+            presets = [name for name, p in PRESETS.items() if p == settings]
+            rows.append(
+                {
+                    "env": env,
+                    "label": label,
+                    "preset": "/".join(presets),
+                    **dataclasses.asdict(settings),
+                    **{k: summary[k] for k in ROW_METRICS},
+                }
+            )
+    return mark_front(rows)
+
+
+ROW_METRICS = (
+    "success_rate",
+    "pos_err_mm_mean",
+    "angle_err_deg_mean",
+    "solve_ms_median",
+    "solve_ms_p90",
+    "iterations_median",
+    "trials",
+)
+
+
+def objectives(row: dict) -> tuple[float, float, float]:
+    """What the front minimizes: solve time, failure rate, mean final angle error."""
+    return row["solve_ms_median"], 1.0 - row["success_rate"], row["angle_err_deg_mean"]
+
+
+def mark_front(rows: list[dict]) -> list[dict]:
+    """Set each row's ``on_front``: is it on its environment's Pareto front of
+    :func:`objectives`."""
+    for env in dict.fromkeys(r["env"] for r in rows):
+        group = [r for r in rows if r["env"] == env]
+        front = set(pareto_front([objectives(r) for r in group]))
+        for i, row in enumerate(group):
+            row["on_front"] = i in front
+    return rows
+
+
+def preset_report(rows: Sequence[dict]) -> list[str]:
+    """One line per environment and preset: on the front or not."""
+    lines = []
+    for env in dict.fromkeys(r["env"] for r in rows):
+        for name, settings in PRESETS.items():
+            row = next((r for r in rows if r["env"] == env and r["label"] == settings.label), None)
+            if row is None:
+                lines.append(f"- {env}, `{name}`: not measured")
+                continue
+            where = "on the front" if row["on_front"] else "NOT on the front"
+            lines.append(
+                f"- {env}, `{name}` ({settings.label}): {where}: "
+                f"{100 * row['success_rate']:.0f} % success, {row['pos_err_mm_mean']:.1f} mm, "
+                f"{row['angle_err_deg_mean']:.1f}°, {row['solve_ms_median']:.1f} ms median solve"
+            )
+    return lines
+
+
+def markdown(rows: Sequence[dict], trials: int) -> str:
+    """The report: a table per environment (front rows in bold) and where the presets lie."""
+    lines = [
+        f"MPC settings, {trials} trials per pair; the front minimizes median solve time, failure "
+        "rate and mean final angle error (front rows in **bold**).",
+        "",
+    ]
+    for env in dict.fromkeys(r["env"] for r in rows):
+        pairs = ", ".join(f"{task} {obj}" for task, obj in PAIRS[env])
+        lines += [f"**{env}** ({pairs})", ""]
+        lines.append("| setting | preset | success | pos [mm] | angle [°] | solve ms | p90 ms |")
+        lines.append("|---|---|---|---|---|---|---|")
+        for r in sorted((r for r in rows if r["env"] == env), key=lambda r: r["solve_ms_median"]):
+            label = f"**{r['label']}**" if r["on_front"] else r["label"]
+            lines.append(
+                f"| {label} | {r['preset']} | {100 * r['success_rate']:.0f} % | "
+                f"{r['pos_err_mm_mean']:.1f} | {r['angle_err_deg_mean']:.1f} | "
+                f"{r['solve_ms_median']:.1f} | {r['solve_ms_p90']:.1f} |"
+            )
+        lines.append("")
+    lines += ["Presets:", "", *preset_report(rows), ""]
+    return "\n".join(lines)
+
+
+def plot(path: Path, rows: Sequence[dict], env: str) -> Path:
+    """Success and mean final angle error against median solve time, front and presets marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    group = sorted((r for r in rows if r["env"] == env), key=lambda r: r["solve_ms_median"])
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, scale, name in (
+        (axes[0], "success_rate", 100.0, "success [%]"),
+        (axes[1], "angle_err_deg_mean", 1.0, "mean final angle error [°]"),
+    ):
+        x = [r["solve_ms_median"] for r in group]
+        y = [scale * r[key] for r in group]
+        ax.scatter(x, y, color="grey", s=18, zorder=2)
+        front = [(a, b) for a, b, r in zip(x, y, group, strict=True) if r["on_front"]]
+        front_x, front_y = zip(*front, strict=True)
+        ax.plot(front_x, front_y, "o-", color="tab:blue", ms=5, label="Pareto front", zorder=3)
+        for a, b, r in zip(x, y, group, strict=True):
+            ax.annotate(r["label"], (a, b), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            if r["preset"]:
+                ax.scatter([a], [b], marker="*", s=180, color="tab:red", zorder=4)
+                ax.annotate(
+                    r["preset"],
+                    (a, b),
+                    fontsize=9,
+                    color="tab:red",
+                    xytext=(4, -12),
+                    textcoords="offset points",
+                )
+        ax.set_xscale("log")
+        ax.set_xlabel("median MPC solve per step [ms]")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="lower right")
+    figure.suptitle(f"{env}: closed-loop MPC, settings and presets (red stars)")
+    figure.tight_layout()
+    save_figure(figure, path)
+    plt.close(figure)
+    return path
+
+
+def write_outputs(out: Path, rows: list[dict], trials: int) -> list[Path]:
+    """CSV, JSON, markdown report and one plot per environment."""
+    report = markdown(rows, trials)
+    paths = [
+        write_csv(out / "mpc_tradeoff.csv", rows),
+        write_json(out / "mpc_tradeoff.json", {"trials": trials, "pairs": PAIRS, "rows": rows}),
+        atomic_write(out / "mpc_tradeoff.md", lambda f: f.write(report)),
+    ]
+    for env in dict.fromkeys(r["env"] for r in rows):
+        paths.append(plot(out / f"mpc_pareto_{env}.png", rows, env))
+    return paths
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="benchmarks/tradeoff.py --level mpc",
+        description="Closed-loop MPC success and error against solve time, per solver setting.",
+    )
+    parser.add_argument("--env", choices=sorted(PAIRS), nargs="+", default=sorted(PAIRS))
+    parser.add_argument("--settings", nargs="+", default=list(GRID), help=f"labels of {list(GRID)}")
+    parser.add_argument("--trials", type=int, default=TRIALS, help="seeds per pair")
+    parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
+    parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
+    parser.add_argument("--out", type=Path, default=Path("results/tradeoff/mpc"))
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args(argv)
+    unknown = [label for label in args.settings if label not in GRID]
+    if unknown:
+        parser.error(f"--settings must be labels of {list(GRID)}, got {unknown}")
+    for name in ("trials", "workers"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.max_steps is not None and args.max_steps < 1:
+        parser.error(f"--max-steps must be >= 1, got {args.max_steps}")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run what is missing, then print the report and write the outputs; exit status 0."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    args = parse_args(argv)
+    run_sweep(
+        args.out,
+        args.env,
+        args.settings,
+        args.trials,
+        args.workers,
+        args.max_steps,
+        not args.no_progress,
+    )
+    rows = collect(args.out, args.env, args.settings, args.trials)
+    paths = write_outputs(args.out, rows, args.trials)
+    print()
+    print(markdown(rows, args.trials))
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
