@@ -41,7 +41,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
 from torchcontact.learn.policies import ACTIONS, make_policy
-from torchcontact.learn.scenes import Scene, make_scene
+from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
 from torchcontact.results import atomic_write, read_json, write_json
 
 FORMAT = "torchcontact.learn.transitions"
@@ -67,7 +67,7 @@ def trajectory_file(index: int) -> str:
     return f"trajectory_{index:05d}.npz"
 
 
-def scene_header(scene: Scene) -> dict:
+def scene_header(scene: Scene | BoxPushingScene) -> dict:
     """The manifest entries that describe ``scene``'s plant and model (see module docstring)."""
     system = scene.system
     n_u = system.n_robot
@@ -92,7 +92,9 @@ def scene_header(scene: Scene) -> dict:
     }
 
 
-def collect_trajectory(scene: Scene, actions: str, seed: int, steps: int, noise=None) -> dict:
+def collect_trajectory(
+    scene: Scene | BoxPushingScene, actions: str, seed: int, steps: int, noise=None
+) -> dict:
     """Run one trajectory of ``steps`` steps from the scene's sampled pose of ``seed``.
 
     Returns the trajectory's arrays (the layout of a trajectory file, without ``meta``).
@@ -181,9 +183,10 @@ def collect(
         scene, obj, task: the scene, its object and the task whose sampler gives each
             trajectory's initial (and, for MPC actions, target) pose; see :func:`make_scene`.
         trajectories: number of trajectories; steps: transitions per trajectory.
-        actions: ``"random"`` (:class:`~torchcontact.learn.policies.ReachPolicy`), ``"mpc"``
+        actions: ``"random"`` (:class:`~torchcontact.learn.policies.ReachPolicy`, for box
+            pushing :class:`~torchcontact.learn.policies.PushPolicy`), ``"mpc"``
             (:class:`~torchcontact.learn.policies.MPCPolicy`) or ``"mixed"`` (random for
-            even trajectory ids, MPC for odd ones).
+            even trajectory ids, MPC for odd ones); box pushing takes ``"random"`` only.
         seed: trajectory ``i`` uses seed ``seed + i``.
         noise: exploration noise as a fraction of the control bound (None: each policy's
             default, 0.3 random and 0.1 MPC).
@@ -192,6 +195,8 @@ def collect(
     """
     if actions not in ACTIONS:
         raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
+    if scene == BOX_PUSHING and actions != "random":
+        raise ValueError(f"box_pushing has no MPC task: actions must be 'random', got {actions!r}")
     for name, value in (("trajectories", trajectories), ("steps", steps)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")

@@ -42,10 +42,10 @@ from torchcontact.learn.fit import (
     save_checkpoint,
 )
 from torchcontact.learn.policies import ACTIONS
-from torchcontact.learn.scenes import SCENES, make_scene
+from torchcontact.learn.scenes import BOX_PUSHING, SCENES, make_scene
 from torchcontact.results import write_csv, write_json
 
-DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50}
+DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
 """Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
 
 MODELS = ("paper_k", "best_constant_k", "learned")
@@ -63,7 +63,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--task", default=None, help="the suite task whose sampler starts each trajectory")
     add("--trajectories", type=int, default=400, help="trajectories used (collected if missing)")
     add("--steps", type=int, default=None, help=f"steps per trajectory (default {DEFAULT_STEPS})")
-    add("--actions", choices=ACTIONS, default="mpc", help="action source")
+    add(
+        "--actions",
+        choices=ACTIONS,
+        default=None,
+        help="action source (default mpc; random for box_pushing, which has no MPC task)",
+    )
     add("--noise", type=float, default=None, help="exploration noise, fraction of the bound")
     add("--no-compile", action="store_true", help="eager MPC while collecting")
     add("--data", type=Path, default=None, help="dataset directory (default under --out)")
@@ -101,6 +106,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if not args.distance_scale > 0:
         parser.error(f"--distance-scale must be positive, got {args.distance_scale}")
     args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
+    if args.actions is None:
+        args.actions = "random" if args.scene == BOX_PUSHING else "mpc"
+    elif args.scene == BOX_PUSHING and args.actions != "random":
+        parser.error(f"--actions must be random for box_pushing (no MPC task), got {args.actions}")
     if args.steps <= args.horizon:
         parser.error(f"--steps must exceed --horizon ({args.horizon}), got {args.steps}")
     low, high, count = args.sweep

@@ -1,4 +1,5 @@
-"""Action sources for data collection: a random reach-and-push policy and the paper's MPC.
+"""Action sources for data collection: a random reach-and-push policy and the paper's MPC
+(the manipulation scenes), random pushes (box pushing).
 
 A policy is called as ``policy(q, contacts) -> u`` with the plant state ``q (nq,)`` and the
 contacts detected there, and returns ``u (n_u,)`` inside the scene's control box. Both draw
@@ -12,7 +13,7 @@ import torch
 from pytorch_kinematics.transforms import quaternion_to_matrix
 
 from torchcontact.contacts import Contacts
-from torchcontact.learn.scenes import Scene
+from torchcontact.learn.scenes import BoxPushingScene, Scene
 
 ACTIONS = ("random", "mpc", "mixed")
 """Action sources of a dataset; ``"mixed"`` alternates random (even ids) and MPC (odd ids)."""
@@ -120,12 +121,49 @@ class MPCPolicy:
         return np.clip(u, self.lower, self.upper)
 
 
-def make_policy(kind: str, scene: Scene, seed: int, target: np.ndarray, noise: float | None = None):
+class PushPolicy:
+    """Random bar pushes: the experiment's push plus Ornstein–Uhlenbeck noise, in the box.
+
+    Args:
+        scene: the box-pushing scene (its nominal push and control box).
+        seed: seed of the noise.
+        noise: noise standard deviation as a fraction of the control bound.
+        correlation: noise correlation between consecutive steps, in [0, 1).
+    """
+
+    def __init__(
+        self, scene: BoxPushingScene, seed: int, noise: float = 0.3, correlation: float = 0.8
+    ):
+        if not noise >= 0.0:
+            raise ValueError(f"noise must be non-negative, got {noise!r}")
+        if not 0.0 <= correlation < 1.0:
+            raise ValueError(f"correlation must be in [0, 1), got {correlation!r}")
+        self.rng = np.random.default_rng(seed)
+        self.lower, self.upper = scene.control_bounds
+        self.nominal = np.array([scene.env.config.push])
+        self.sigma = noise * np.maximum(np.abs(self.lower), np.abs(self.upper))
+        self.correlation = correlation
+        self.noise = np.zeros(1)
+
+    def __call__(self, q: np.ndarray, contacts: Contacts) -> np.ndarray:
+        fresh = self.rng.standard_normal(1) * np.sqrt(1.0 - self.correlation**2)
+        self.noise = self.correlation * self.noise + fresh
+        return np.clip(self.nominal + self.sigma * self.noise, self.lower, self.upper)
+
+
+def make_policy(
+    kind: str, scene: Scene | BoxPushingScene, seed: int, target: np.ndarray, noise=None
+):
     """The policy of action source ``kind`` (``"random"`` or ``"mpc"``) for one trajectory.
 
     ``noise`` overrides the policy's default exploration noise (fraction of the bound).
+    Box pushing has no MPC task: its only source is ``"random"`` (:class:`PushPolicy`).
     """
     options = {} if noise is None else {"noise": noise}
+    if isinstance(scene, BoxPushingScene):
+        if kind != "random":
+            raise ValueError(f"box_pushing has no MPC task: actions must be 'random', got {kind!r}")
+        return PushPolicy(scene, seed, **options)
     if kind == "random":
         return ReachPolicy(scene, seed, **options)
     if kind == "mpc":

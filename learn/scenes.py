@@ -5,10 +5,11 @@ system, contact model, time step and joint layout the paper's MPC uses for that 
 the data are fitted to). ``make_scene("trifinger", "cube")`` builds one from the evaluation
 suites of :mod:`torchcontact.mpc.suites`, so the learned model is the MPC's model.
 
-The box-pushing scene (:mod:`torchcontact.experiments.box_pushing`) is not one of them: its
-MuJoCo model is geometry for contact detection only (the bar has no actuator and MuJoCo never
-steps it), so it has no plant whose transitions could be recorded. A bar servo plant in
-:mod:`torchcontact.sim` would make it a scene here.
+``make_scene("box_pushing")`` is the paper's box-pushing scene (a bar pushing a row of 10
+cubes, :mod:`torchcontact.experiments.box_pushing`) as a data source: its plant drives the bar
+kinematically (:class:`~torchcontact.experiments.box_pushing_plant.BoxPushingPlant`) and its
+model is the experiment's quasi-dynamic system with the CF model at K = 1, exact ``max(·, 0)``.
+It has no manipulation task and so no MPC: its actions are random pushes.
 """
 
 from __future__ import annotations
@@ -18,16 +19,20 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from torchcontact.experiments import box_pushing as bp
+from torchcontact.experiments.box_pushing_plant import BoxPushingPlant
 from torchcontact.integrate import JointLayout
 from torchcontact.model import ComplementarityFree
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.suites import SUITES
 from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.plant import Plant
+from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 
-SCENES = tuple(SUITES)
-"""Scene names: ``"fingertips"``, ``"trifinger"`` and ``"allegro"``."""
+BOX_PUSHING = "box_pushing"
+SCENES = (*SUITES, BOX_PUSHING)
+"""Scene names: ``"fingertips"``, ``"trifinger"``, ``"allegro"`` and ``"box_pushing"``."""
 
 
 @dataclass
@@ -98,12 +103,99 @@ class Scene:
         return SUITES[self.name].sample(self.env, self.task, self.object, seed)
 
 
-def make_scene(name: str, obj: str = "cube", task: str | None = None, **mpc_options) -> Scene:
-    """The plant of suite ``name`` with object ``obj`` and the paper's MPC of it.
+@dataclass
+class BoxPushingScene:
+    """The box-pushing plant and the experiment's model of it (the attributes of
+    :class:`Scene` that data collection and fitting read; there is no ``mpc``).
+
+    Attributes:
+        name: ``"box_pushing"``; object: ``"cube"``; task: ``"push"``.
+        env: the plant; one ``env.step(u)`` moves the bar by ``u`` [m] in one model step.
+        system: the quasi-dynamic system (ε = 40, Kᵣ = 500 N/m, the cubes' gravity).
+        model: CF at the experiment's K = 1, D = 0.1·K (as the MPC scenes), exact max.
+        layout: the cubes' free joints, then the bar's slide joint.
+        h: the model's time step [s].
+    """
+
+    name: str
+    object: str
+    task: str
+    env: BoxPushingPlant
+    system: QuasiDynamic
+    model: ComplementarityFree
+    layout: JointLayout
+    h: float
+
+    jitter = (0.002, 0.003, 0.1)
+    """Half-widths of the uniform perturbation of each cube's x, y [m] and yaw [rad]."""
+    pose_weights = (500.0, 5.0)
+    """Position [1/m²] and orientation weights of the combined pose error (the MPC scenes')."""
+
+    @property
+    def paper_stiffness(self) -> float:
+        """The box-pushing experiment's K."""
+        return self.env.config.contact_stiffness
+
+    @property
+    def control_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bar moves towards the cubes by 0 to twice the experiment's push per step [m]."""
+        return np.array([2 * min(self.env.config.push, 0.0)]), np.array([0.0])
+
+    @property
+    def control_dt(self) -> float:
+        return self.env.frame_skip * float(self.env.model.opt.timestep)
+
+    def sample(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """The row of cubes, each shifted and turned at random (:attr:`jitter`), at rest; the
+        second pose (unused: the scene has no goal) is the first cube's."""
+        rng = np.random.default_rng(seed)
+        q = self.env.initial_state
+        dx, dy, yaw = self.jitter
+        for i in range(self.env.config.cubes):
+            at = 7 * i  # the cubes' free joints come first in q
+            q[at : at + 2] += rng.uniform([-dx, -dy], [dx, dy])
+            angle = rng.uniform(-yaw, yaw)
+            q[at + 3 : at + 7] = [np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)]
+        return q, q[:7].copy()
+
+
+def box_pushing_scene(config: bp.BoxPushingConfig | None = None) -> BoxPushingScene:
+    """The box-pushing scene of ``config`` (default: the experiment's 10 cubes)."""
+    config = bp.BoxPushingConfig() if config is None else config
+    built = bp.build_scene(config)
+    model = ComplementarityFree(
+        Constant(config.contact_stiffness, learnable=False),
+        Relative(0.1, learnable=False),
+        gamma=config.gamma,
+        facets=config.facets,
+    )
+    return BoxPushingScene(
+        name=BOX_PUSHING,
+        object="cube",
+        task="push",
+        env=BoxPushingPlant(config),
+        system=built.system,
+        model=model,
+        layout=built.layout,
+        h=config.h,
+    )
+
+
+def make_scene(
+    name: str, obj: str = "cube", task: str | None = None, **mpc_options
+) -> Scene | BoxPushingScene:
+    """The plant of suite ``name`` with object ``obj`` and the paper's MPC of it, or the
+    box-pushing scene (object ``"cube"``, task ``"push"``, no MPC).
 
     ``task`` defaults to the suite's first task defined for ``obj``; ``mpc_options`` go to
     the MPC (``max_iter``, ``compile``, ...).
     """
+    if name == BOX_PUSHING:
+        if obj != "cube" or task not in (None, "push"):
+            raise ValueError(
+                f"box_pushing has object 'cube' and task 'push' only, got {obj!r}, {task!r}"
+            )
+        return box_pushing_scene()
     if name not in SUITES:
         raise ValueError(f"name must be one of {SCENES}, got {name!r}")
     suite = SUITES[name]

@@ -62,7 +62,6 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 from tqdm.auto import tqdm
@@ -70,6 +69,7 @@ from tqdm.auto import tqdm
 from torchcontact.contacts import Contacts
 from torchcontact.experiments import box_pushing as bp
 from torchcontact.experiments import full_dynamic as fd
+from torchcontact.experiments.box_pushing_plant import BoxPushingPlant
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import Transitions, collect, load, select_contacts
 from torchcontact.learn.evaluate import pose_metrics
@@ -436,27 +436,13 @@ QUICK = Size(3, 30, 40, 100, 2, 12, "random", 5, 10, 10, 2)
 
 
 def box_pushing_reference(config: bp.BoxPushingConfig, steps: int, substeps: int = 10):
-    """MuJoCo's box pushing: ``(steps + 1, nq)`` float64 states, one per model step.
-
-    The scene's MJCF at timestep ``h/substeps`` with every geom's sliding friction set to
-    ``config.mu``; the bar is driven kinematically (qpos ``x₀ + u·t/h`` and qvel ``u/h``
-    before every substep, qpos exactly ``x₀ + u·k`` at each recorded step k).
-    """
-    model = mujoco.MjModel.from_xml_string(bp.scene_xml(config))
-    model.opt.timestep = config.h / substeps
-    model.geom_friction[:, 0] = config.mu
-    data = mujoco.MjData(model)
-    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "bar")
-    bar_q, bar_v = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])
-    x0 = float(data.qpos[bar_q])
-    states = [data.qpos.copy()]
-    for step in range(steps):
-        for sub in range(substeps):
-            data.qpos[bar_q] = x0 + config.push * (step + sub / substeps)
-            data.qvel[bar_v] = config.push / config.h
-            mujoco.mj_step(model, data)
-        data.qpos[bar_q] = x0 + config.push * (step + 1)
-        states.append(data.qpos.copy())
+    """MuJoCo's box pushing: ``(steps + 1, nq)`` float64 states, one per model step, the bar
+    commanded ``config.push`` every step (:class:`BoxPushingPlant`)."""
+    plant = BoxPushingPlant(config, substeps)
+    plant.reset(plant.initial_state)
+    states = [plant.state()]
+    for _ in range(steps):
+        states.append(plant.step([config.push]))
     return np.stack(states)
 
 

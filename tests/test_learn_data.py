@@ -168,3 +168,25 @@ def test_missing_manifest_or_file_is_reported(dataset, tmp_path):
     (broken / "trajectory_00000.npz").unlink()
     with pytest.raises(DataFormatError, match=r"trajectory_00000\.npz: trajectory file missing"):
         load(broken)
+
+
+def test_box_pushing_collects_random_pushes_of_a_bar_that_moves_as_commanded(tmp_path):
+    collect(tmp_path / "bp", "box_pushing", trajectories=2, steps=25, progress=False)
+    transitions = load(tmp_path / "bp")
+    meta = transitions.meta
+    assert (meta["scene"], meta["task"], meta["nq"], meta["nu"]) == ("box_pushing", "push", 71, 1)
+    assert meta["joints"] == ["free"] * 10 + ["slide"] and meta["gamma"] is None
+    u = transitions.u[:, 0]
+    assert bool((u <= 0).all()) and bool((u >= -0.002).all()) and u.std() > 1e-4
+    bar = transitions.q_next[:, -1] - transitions.q[:, -1]
+    assert torch.allclose(bar, u, atol=1e-12)  # the plant's bar goes exactly where sent
+    first_cube_x = transitions.q_next[transitions.trajectory == 0, 0]
+    assert float(first_cube_x[-1] - first_cube_x[0]) < -0.005  # pushed along −x
+    assert bool(transitions.contacts.active.any(-1).all())  # the cubes rest on the ground
+
+
+def test_box_pushing_refuses_mpc_actions_by_name(tmp_path):
+    with pytest.raises(ValueError, match="actions must be 'random'"):
+        collect(tmp_path / "bp", "box_pushing", trajectories=1, steps=5, actions="mpc")
+    with pytest.raises(ValueError, match="box_pushing has object 'cube'"):
+        make_scene("box_pushing", "stick")

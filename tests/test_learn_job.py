@@ -76,3 +76,23 @@ def test_bad_options_are_rejected(capsys):
     with pytest.raises(SystemExit):
         main(["learn-k", "--steps", "5", "--horizon", "10"])
     assert "--steps must exceed --horizon" in capsys.readouterr().err
+
+
+def test_tiny_learn_k_run_on_box_pushing(tmp_path):
+    options = (
+        "--scene box_pushing --trajectories 3 --steps 8 --horizon 3 --stride 2 "
+        "--sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress"
+    )
+    argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
+    assert main([*argv, "--json", str(tmp_path / "headline.json")]) == 0
+    headline = read_json(tmp_path / "headline.json")
+    assert headline["transitions"] == 24
+    assert all(math.isfinite(headline[key]) for key in HEADLINE)
+    _, _, meta = load_checkpoint(tmp_path / "box_pushing_cube" / "model.pt")
+    assert meta["actions"] == "random" and meta["joints"].count("free") == 10
+
+
+def test_learn_k_refuses_mpc_actions_for_box_pushing(capsys):
+    with pytest.raises(SystemExit):
+        main(["learn-k", "--scene", "box_pushing", "--actions", "mpc"])
+    assert "--actions must be random for box_pushing" in capsys.readouterr().err

@@ -183,6 +183,7 @@ class BoxPushingScene:
         bar_q: index of the bar's x in q.
         linear_v: indices in v of the cubes' linear velocities and of the bar's.
         angular_v: indices in v of the cubes' angular velocities.
+        system: the quasi-dynamic system ``u ↦ (Q, b)`` (float64).
     """
 
     config: BoxPushingConfig
@@ -196,6 +197,7 @@ class BoxPushingScene:
     bar_q: int
     linear_v: torch.Tensor
     angular_v: torch.Tensor
+    system: QuasiDynamic
 
 
 def build_scene(config: BoxPushingConfig) -> BoxPushingScene:
@@ -243,6 +245,7 @@ def build_scene(config: BoxPushingConfig) -> BoxPushingScene:
         bar_q=int(model.jnt_qposadr[bar_joint]),
         linear_v=torch.cat([dofs[:, :3].flatten(), torch.tensor([bar_dof])]),
         angular_v=dofs[:, 3:].flatten(),
+        system=system,
     )
 
 
