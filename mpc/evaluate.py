@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import MPC_MODELS
-from torchcontact.mpc.presets import DEFAULT_PRESET, PRESETS, MPCSettings
+from torchcontact.mpc.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings, preset
 from torchcontact.mpc.suites import SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
@@ -80,8 +80,8 @@ class TrialConfig:
     model: str = DEFAULT_MODEL
     relaxation: float | None = None  # κ of the QP; None for the complementarity-free model
     learned: str | None = None  # a learn-k checkpoint whose K(q), D(q) the MPC plans with
-    memory: int = PRESETS[DEFAULT_PRESET].memory  # L-BFGS memory
-    horizon: int = PRESETS[DEFAULT_PRESET].horizon  # T
+    memory: int = PAPER.memory  # L-BFGS memory
+    horizon: int = PAPER.horizon  # T
 
     @property
     def name(self) -> str:
@@ -244,10 +244,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument(
         "--preset",
-        choices=tuple(PRESETS),
+        choices=NAMES,
         default=DEFAULT_PRESET,
-        help="solver settings from the measured speed-accuracy front (README 'Choosing "
-        "settings'); the options below override single values",
+        help="the environment's solver settings from the measured speed-accuracy front "
+        "(README 'Choosing settings'); the options below override single values",
     )
     parser.add_argument("--max-iter", type=int, default=None, help="L-BFGS iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
@@ -314,7 +314,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "compile": False if args.no_compile else None,
     }
     args.settings = dataclasses.replace(
-        PRESETS[args.preset], **{k: v for k, v in overrides.items() if v is not None}
+        preset(args.env, args.preset), **{k: v for k, v in overrides.items() if v is not None}
     )
     if args.max_steps is not None and args.max_steps < 1:
         parser.error(f"--max-steps must be >= 1, got {args.max_steps}")
@@ -470,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     summary["model"], summary["relaxation"] = args.model, args.relaxation
     summary["learned"] = args.learned
     # the preset's name only when no option overrode it
-    summary["preset"] = args.preset if settings == PRESETS[args.preset] else None
+    summary["preset"] = args.preset if settings == preset(args.env, args.preset) else None
     summary["settings"] = dataclasses.asdict(settings)
     summary["pairs"] = {
         f"{task} {obj}": summarize([r for r in records if (r["task"], r["object"]) == (task, obj)])

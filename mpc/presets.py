@@ -1,13 +1,17 @@
 """Named MPC settings on the measured speed–accuracy front: ``fast``, ``balanced``, ``accurate``.
 
 A preset fixes the solver's settings, not the task's: L-BFGS iterations and memory, the
-horizon T, the dtype and whether the objective is compiled. The values come from the MPC-level
-sweep of ``python benchmarks/tradeoff.py`` (:mod:`torchcontact.mpc.tradeoff`), which reruns
-every setting below and marks the presets on its Pareto plots; README "Choosing settings"
-shows the figures. ``balanced`` is the default of ``torchcontact run`` and of
-:func:`preset_options`.
+horizon T, the dtype and whether the objective is compiled. Presets are per environment, as
+the measured fronts differ: a 2-step horizon is the fastest and most successful TriFinger
+setting and the worst fingertip one. The values come from the MPC-level sweep of
+``python benchmarks/tradeoff.py`` (:mod:`torchcontact.mpc.tradeoff`, 10 trials per pair), which
+reruns every setting below and reports whether each preset is on its environment's front;
+README "Choosing settings" shows the figures. Allegro was not swept: it takes TriFinger's
+presets except ``balanced``, which stays at the paper's settings.
 
-    mpc = hand_mpc("trifinger", **preset_options("fast"))
+``balanced`` is the default of ``torchcontact run`` and of :func:`preset_options`::
+
+    mpc = hand_mpc("trifinger", **preset_options("trifinger", "fast"))
     torchcontact run trifinger --preset fast
 """
 
@@ -55,23 +59,42 @@ class MPCSettings:
         return f"it{self.max_iter} m{self.memory} T{self.horizon} f{self.dtype[-2:]} {mode}"
 
 
-PRESETS: dict[str, MPCSettings] = {
-    "fast": MPCSettings(max_iter=10, memory=8, horizon=4, dtype="float32"),
-    "balanced": MPCSettings(),
-    "accurate": MPCSettings(max_iter=50, memory=8, horizon=4),
-}
-"""The named presets; see the module docstring for where their values come from."""
+PAPER = MPCSettings()
+"""The settings every environment ran with before the sweep: 30 iterations, memory 8, T = 4
+(the paper's horizon), float64, compiled."""
 
+_TRIFINGER = {
+    "fast": MPCSettings(horizon=2),
+    "balanced": MPCSettings(horizon=2),
+    "accurate": MPCSettings(horizon=6),
+}
+
+PRESETS: dict[str, dict[str, MPCSettings]] = {
+    "fingertips": {
+        "fast": MPCSettings(max_iter=5),
+        "balanced": MPCSettings(dtype="float32"),
+        "accurate": MPCSettings(memory=16),
+    },
+    "trifinger": _TRIFINGER,
+    "allegro": {**_TRIFINGER, "balanced": PAPER},
+}
+"""Presets by environment and name (module docstring: where the values come from). TriFinger's
+``fast`` and ``balanced`` coincide: T = 2 was its fastest and most successful setting;
+``accurate`` (T = 6) had the smallest final angle error, at 3.5× the solve time."""
+
+NAMES = ("fast", "balanced", "accurate")
 DEFAULT_PRESET = "balanced"
 
 
-def preset(name: str) -> MPCSettings:
-    """The settings of preset ``name`` (one of :data:`PRESETS`)."""
-    if name not in PRESETS:
-        raise ValueError(f"preset must be one of {tuple(PRESETS)}, got {name!r}")
-    return PRESETS[name]
+def preset(env: str, name: str = DEFAULT_PRESET) -> MPCSettings:
+    """The settings of preset ``name`` (one of :data:`NAMES`) for environment ``env``."""
+    if env not in PRESETS:
+        raise ValueError(f"env must be one of {tuple(PRESETS)}, got {env!r}")
+    if name not in NAMES:
+        raise ValueError(f"preset must be one of {NAMES}, got {name!r}")
+    return PRESETS[env][name]
 
 
-def preset_options(name: str = DEFAULT_PRESET) -> dict:
-    """:meth:`MPCSettings.options` of preset ``name``: ``fingertips_mpc(obj, **...)``."""
-    return preset(name).options()
+def preset_options(env: str, name: str = DEFAULT_PRESET) -> dict:
+    """:meth:`MPCSettings.options` of :func:`preset`: ``hand_mpc(hand, **...)``."""
+    return preset(env, name).options()

@@ -26,7 +26,7 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from torchcontact.mpc import evaluate
-from torchcontact.mpc.presets import DEFAULT_PRESET, PRESETS, MPCSettings
+from torchcontact.mpc.presets import NAMES, PAPER, PRESETS, MPCSettings
 from torchcontact.results import (
     atomic_write,
     pareto_front,
@@ -36,9 +36,16 @@ from torchcontact.results import (
     write_json,
 )
 
+PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
+    "fingertips": (("rotation", "cube"), ("in-air", "cube")),
+    "trifinger": (("in-hand", "cube"), ("in-hand", "foam_brick"), ("in-hand", "stick")),
+}
+"""(task, object) pairs run per environment: an easy and a hard fingertip task, and TriFinger's
+easiest, a soft and its hardest object of the paper's set."""
+
 
 def _grid() -> dict[str, MPCSettings]:
-    base = PRESETS[DEFAULT_PRESET]
+    base = PAPER
     variations = [
         *(dict(max_iter=n) for n in (5, 10, 20, 50)),
         *(dict(memory=m) for m in (3, 16)),
@@ -46,19 +53,13 @@ def _grid() -> dict[str, MPCSettings]:
         dict(dtype="float32"),
         dict(compile=False),
     ]
-    settings = [base, *(dataclasses.replace(base, **v) for v in variations), *PRESETS.values()]
+    presets = [p for env in PAIRS for p in PRESETS[env].values()]
+    settings = [base, *(dataclasses.replace(base, **v) for v in variations), *presets]
     return {s.label: s for s in settings}  # labels are unique per settings: presets dedupe
 
 
 GRID: dict[str, MPCSettings] = _grid()
 """The swept settings by label."""
-
-PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
-    "fingertips": (("rotation", "cube"), ("in-air", "cube")),
-    "trifinger": (("in-hand", "cube"), ("in-hand", "foam_brick"), ("in-hand", "stick")),
-}
-"""(task, object) pairs run per environment: an easy and a hard fingertip task, and TriFinger's
-easiest, a soft and its hardest object of the paper's set."""
 
 TRIALS = 10
 
@@ -107,7 +108,7 @@ def collect(out: Path, envs: Sequence[str], labels: Sequence[str], trials: int) 
                         raise ValueError(f"{path} was run with other settings than {label!r}")
                     records.append(record)
             summary = evaluate.summarize(records)
-            presets = [name for name, p in PRESETS.items() if p == settings]
+            presets = [name for name in NAMES if PRESETS[env][name] == settings]
             rows.append(
                 {
                     "env": env,
@@ -151,7 +152,8 @@ def preset_report(rows: Sequence[dict]) -> list[str]:
     """One line per environment and preset: on the front or not."""
     lines = []
     for env in dict.fromkeys(r["env"] for r in rows):
-        for name, settings in PRESETS.items():
+        for name in NAMES:
+            settings = PRESETS[env][name]
             row = next((r for r in rows if r["env"] == env and r["label"] == settings.label), None)
             if row is None:
                 lines.append(f"- {env}, `{name}`: not measured")

@@ -1,4 +1,4 @@
-"""Named MPC presets: their values, the CLI's --preset with single-value overrides, the API."""
+"""Named MPC presets per environment: their values, the CLI's --preset with overrides, the API."""
 
 import dataclasses
 
@@ -9,32 +9,43 @@ from torchcontact.mpc.evaluate import parse_args
 from torchcontact.mpc.fingertips import fingertips_mpc
 from torchcontact.mpc.presets import (
     DEFAULT_PRESET,
+    NAMES,
     PRESETS,
     MPCSettings,
     preset,
     preset_options,
 )
+from torchcontact.mpc.suites import SUITES
+from torchcontact.mpc.tradeoff import GRID
 
 
-def test_the_three_presets_exist_and_balanced_is_the_default():
-    assert set(PRESETS) == {"fast", "balanced", "accurate"}
-    assert DEFAULT_PRESET == "balanced"
-    assert parse_args(["fingertips"]).settings == PRESETS["balanced"]
-    assert preset_options() == PRESETS["balanced"].options()
+def test_every_environment_has_the_three_presets_and_balanced_is_the_default():
+    assert NAMES == ("fast", "balanced", "accurate") and DEFAULT_PRESET == "balanced"
+    assert set(PRESETS) == set(SUITES)
+    for env in SUITES:
+        assert set(PRESETS[env]) == set(NAMES)
+        assert parse_args([env]).settings == PRESETS[env]["balanced"]
+        assert preset_options(env) == PRESETS[env]["balanced"].options()
+
+
+def test_the_swept_environments_presets_are_all_in_the_measured_grid():
+    for env in ("fingertips", "trifinger"):
+        assert all(p.label in GRID for p in PRESETS[env].values())
 
 
 def test_the_cli_takes_a_preset_and_overrides_single_values():
     fast = parse_args(["trifinger", "--preset", "fast"]).settings
-    assert fast == PRESETS["fast"]
-    mixed = parse_args(["trifinger", "--preset", "fast", "--horizon", "6", "--no-compile"])
-    assert mixed.settings == dataclasses.replace(PRESETS["fast"], horizon=6, compile=False)
+    assert fast == PRESETS["trifinger"]["fast"]
+    mixed = parse_args(["fingertips", "--preset", "fast", "--horizon", "6", "--no-compile"])
+    assert mixed.settings == dataclasses.replace(
+        PRESETS["fingertips"]["fast"], horizon=6, compile=False
+    )
 
 
 def test_preset_options_build_the_mpc_they_name():
-    options = preset_options("fast")
-    assert options["dtype"] in (torch.float32, torch.float64)
+    options = preset_options("fingertips", "balanced")
     mpc = fingertips_mpc("cube", **{**options, "compile": False})
-    settings = preset("fast")
+    settings = preset("fingertips", "balanced")
     assert (mpc.max_iter, mpc.memory, mpc.horizon) == (
         settings.max_iter,
         settings.memory,
@@ -57,6 +68,8 @@ def test_bad_settings_are_refused_by_name(bad, message):
         MPCSettings(**bad)
 
 
-def test_an_unknown_preset_is_refused_by_name():
+def test_an_unknown_preset_or_environment_is_refused_by_name():
     with pytest.raises(ValueError, match="preset must be one of"):
-        preset("fastest")
+        preset("trifinger", "fastest")
+    with pytest.raises(ValueError, match="env must be one of"):
+        preset("shadow_hand", "fast")

@@ -6,10 +6,10 @@ import math
 import pytest
 
 from torchcontact.mpc import tradeoff
-from torchcontact.mpc.presets import PRESETS
+from torchcontact.mpc.presets import PAPER
 from torchcontact.results import pareto_front
 
-EAGER = PRESETS["balanced"].label.replace("compiled", "eager")
+EAGER = PAPER.label.replace("compiled", "eager")
 
 
 def test_pareto_front_with_three_objectives():
