@@ -2,12 +2,12 @@
 
 A preset fixes the solver's settings, not the task's: L-BFGS iterations and memory, the
 horizon T, the dtype and whether the objective is compiled. Presets are per environment, as
-the measured fronts differ: a 2-step horizon is the fastest and most successful TriFinger
-setting on the three swept TriFinger objects and the worst fingertip one. The values come from the MPC-level sweep of
-``python benchmarks/tradeoff.py`` (:mod:`torchcontact.mpc.tradeoff`, 10 trials per pair), which
-reruns every setting below and reports whether each preset is on its environment's front;
-README "Choosing settings" shows the figures. Allegro was not swept: it takes TriFinger's
-presets except ``balanced``, which stays at the paper's settings.
+the measured fronts differ: a 2-step horizon was the fastest and most successful setting on the
+three swept TriFinger objects and the worst fingertip one. The values come from the MPC-level
+sweep of ``python benchmarks/tradeoff.py`` (:mod:`torchcontact.mpc.tradeoff`, 10 trials per
+pair), which reruns every setting below and reports whether each preset is on its
+environment's front; README "Choosing settings" shows the figures. Allegro was not swept: it
+takes TriFinger's presets except ``balanced``, which stays at the paper's settings.
 
 ``balanced`` is the default of ``torchcontact run`` and of :func:`preset_options`::
 
