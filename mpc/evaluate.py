@@ -51,7 +51,13 @@ SUMMARY_KEYS = (
 
 DEFAULT_MODEL = "complementarity_free"
 
-LEGACY_DEFAULTS = {"model": DEFAULT_MODEL, "learned": None, "memory": 8, "horizon": 4}
+LEGACY_DEFAULTS = {
+    "model": DEFAULT_MODEL,
+    "learned": None,
+    "memory": PAPER.memory,
+    "horizon": PAPER.horizon,
+}
+"""Values of configuration keys that records written before the key existed lack."""
 
 
 def variant_name(env: str, model: str, learned: str | None) -> str:
@@ -59,9 +65,6 @@ def variant_name(env: str, model: str, learned: str | None) -> str:
     if learned is not None:
         return f"{env}_learned"
     return env if model == DEFAULT_MODEL else f"{env}_{model}"
-
-
-"""Values of configuration keys that records written before the key existed lack."""
 
 
 @dataclass(frozen=True)
