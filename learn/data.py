@@ -43,6 +43,7 @@ from torchcontact.contacts import Contacts
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
 from torchcontact.results import atomic_write, read_json, write_json
+from torchcontact.systems import QuasiDynamic
 
 FORMAT = "torchcontact.learn.transitions"
 VERSION = 1
@@ -67,12 +68,17 @@ def trajectory_file(index: int) -> str:
     return f"trajectory_{index:05d}.npz"
 
 
-def scene_header(scene: Scene | BoxPushingScene) -> dict:
-    """The manifest entries that describe ``scene``'s plant and model (see module docstring)."""
-    system = scene.system
+def system_header(system: QuasiDynamic) -> dict:
+    """The affine system's manifest entry: ``Q (nv,)``, ``b0 (nv,)``, ``B (nv, nu)`` as lists,
+    ``b(u) = b0 + B·u``."""
     n_u = system.n_robot
     Q, b0 = system(torch.zeros(n_u, dtype=torch.float64))
     _, b_unit = system(torch.eye(n_u, dtype=torch.float64))
+    return {"Q": Q.tolist(), "b0": b0.tolist(), "B": (b_unit - b0).T.tolist()}
+
+
+def scene_header(scene: Scene | BoxPushingScene) -> dict:
+    """The manifest entries that describe ``scene``'s plant and model (see module docstring)."""
     lower, upper = scene.control_bounds
     return {
         "h": scene.h,
@@ -81,12 +87,12 @@ def scene_header(scene: Scene | BoxPushingScene) -> dict:
         "paper_stiffness": scene.paper_stiffness,
         "joints": list(scene.layout.joints),
         "pose_weights": list(scene.pose_weights),
-        "system": {"Q": Q.tolist(), "b0": b0.tolist(), "B": (b_unit - b0).T.tolist()},
+        "system": system_header(scene.system),
         "u_lower": lower.tolist(),
         "u_upper": upper.tolist(),
         "nq": scene.env.nq,
         "nv": scene.env.nv,
-        "nu": n_u,
+        "nu": scene.system.n_robot,
         "slots": scene.env.detector.slots,
         "control_dt": scene.control_dt,
     }

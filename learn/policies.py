@@ -19,6 +19,33 @@ ACTIONS = ("random", "mpc", "mixed")
 """Action sources of a dataset; ``"mixed"`` alternates random (even ids) and MPC (odd ids)."""
 
 
+class CorrelatedNoise:
+    """Ornstein–Uhlenbeck exploration noise of standard deviation ``noise`` × the larger bound
+    and step correlation ``correlation``, one value per control.
+
+    Args:
+        rng: the policy's random generator.
+        lower, upper: ``(n_u,)`` the control box.
+        noise: standard deviation as a fraction of the control bound.
+        correlation: correlation between consecutive steps, in [0, 1).
+    """
+
+    def __init__(self, rng, lower: np.ndarray, upper: np.ndarray, noise: float, correlation: float):
+        if not noise >= 0.0:
+            raise ValueError(f"noise must be non-negative, got {noise!r}")
+        if not 0.0 <= correlation < 1.0:
+            raise ValueError(f"correlation must be in [0, 1), got {correlation!r}")
+        self.rng, self.correlation = rng, correlation
+        self.sigma = noise * np.maximum(np.abs(lower), np.abs(upper))
+        self.state = np.zeros_like(lower, dtype=float)
+
+    def __call__(self) -> np.ndarray:
+        """The next noise sample ``(n_u,)``."""
+        shock = self.rng.standard_normal(self.state.shape)
+        self.state = self.correlation * self.state + np.sqrt(1 - self.correlation**2) * shock
+        return self.sigma * self.state
+
+
 class ReachPolicy:
     """Random reach and push: each fingertip heads for a random point of the object.
 
@@ -50,18 +77,13 @@ class ReachPolicy:
     ):
         if not 0.0 <= push <= 1.0:
             raise ValueError(f"push must be in [0, 1], got {push!r}")
-        if not noise >= 0.0:
-            raise ValueError(f"noise must be non-negative, got {noise!r}")
-        if not 0.0 <= correlation < 1.0:
-            raise ValueError(f"correlation must be in [0, 1), got {correlation!r}")
-        self.scene, self.push, self.correlation = scene, push, correlation
+        self.scene, self.push = scene, push
         self.rng = np.random.default_rng(seed)
         self.lower, self.upper = scene.control_bounds
-        self.sigma = noise * np.maximum(np.abs(self.lower), np.abs(self.upper))
+        self.noise = CorrelatedNoise(self.rng, self.lower, self.upper, noise, correlation)
         vertices = scene.env.object.vertices
         self.box = vertices.min(0), vertices.max(0)
         self.n_tips = scene.fingertips(torch.as_tensor(scene.env.state())).shape[-2]
-        self.noise = np.zeros_like(self.lower)
         self.steps_left = 0
         self.goals = np.zeros((self.n_tips, 3))
 
@@ -88,9 +110,7 @@ class ReachPolicy:
         error = (goals - tips).reshape(-1)
         gram = jac @ jac.T + self.damping * np.eye(len(error))
         step = jac.T @ np.linalg.solve(gram, error)
-        shock = self.rng.standard_normal(self.noise.shape)
-        self.noise = self.correlation * self.noise + np.sqrt(1 - self.correlation**2) * shock
-        return np.clip(step + self.sigma * self.noise, self.lower, self.upper)
+        return np.clip(step + self.noise(), self.lower, self.upper)
 
 
 class MPCPolicy:
@@ -134,21 +154,13 @@ class PushPolicy:
     def __init__(
         self, scene: BoxPushingScene, seed: int, noise: float = 0.3, correlation: float = 0.8
     ):
-        if not noise >= 0.0:
-            raise ValueError(f"noise must be non-negative, got {noise!r}")
-        if not 0.0 <= correlation < 1.0:
-            raise ValueError(f"correlation must be in [0, 1), got {correlation!r}")
-        self.rng = np.random.default_rng(seed)
         self.lower, self.upper = scene.control_bounds
         self.nominal = np.array([scene.env.config.push])
-        self.sigma = noise * np.maximum(np.abs(self.lower), np.abs(self.upper))
-        self.correlation = correlation
-        self.noise = np.zeros(1)
+        rng = np.random.default_rng(seed)
+        self.noise = CorrelatedNoise(rng, self.lower, self.upper, noise, correlation)
 
     def __call__(self, q: np.ndarray, contacts: Contacts) -> np.ndarray:
-        fresh = self.rng.standard_normal(1) * np.sqrt(1.0 - self.correlation**2)
-        self.noise = self.correlation * self.noise + fresh
-        return np.clip(self.nominal + self.sigma * self.noise, self.lower, self.upper)
+        return np.clip(self.nominal + self.noise(), self.lower, self.upper)
 
 
 def make_policy(

@@ -71,7 +71,7 @@ from torchcontact.experiments import box_pushing as bp
 from torchcontact.experiments import full_dynamic as fd
 from torchcontact.experiments.box_pushing_plant import BoxPushingPlant
 from torchcontact.integrate import JointLayout, integrate
-from torchcontact.learn.data import Transitions, collect, load, select_contacts
+from torchcontact.learn.data import Transitions, collect, load, select_contacts, system_header
 from torchcontact.learn.evaluate import pose_metrics
 from torchcontact.learn.fit import object_indices, system_terms
 from torchcontact.learn.scenes import make_scene
@@ -452,18 +452,11 @@ def box_pushing_scene(cubes: int, steps: int, stride: int) -> QuasiDynamicScene:
     config = bp.BoxPushingConfig(cubes=cubes)
     scene = bp.build_scene(config)
     states = torch.from_numpy(box_pushing_reference(config, steps))
-    bar = int(scene.linear_v[-1])  # the bar's velocity index
-    B = torch.zeros(len(scene.b), 1, dtype=torch.float64)
-    B[bar, 0] = config.robot_stiffness
     meta = {
         "h": config.h,
         "joints": list(scene.layout.joints),
         "pose_weights": list(POSE_WEIGHTS),
-        "system": {
-            "Q": scene.Q.tolist(),
-            "b0": (scene.b - B[:, 0] * config.push).tolist(),
-            "B": B.tolist(),
-        },
+        "system": system_header(scene.system),
     }
     q = states[:-1]
     transitions = Transitions(

@@ -67,6 +67,12 @@ def variant_name(env: str, model: str, learned: str | None) -> str:
     return env if model == DEFAULT_MODEL else f"{env}_{model}"
 
 
+def trial_name(variant: str, task: str, obj: str, seed: int) -> str:
+    """File stem of a trial record: ``trifinger_in-hand_cube_seed3`` (a mesh path contributes
+    its file stem; ``variant`` from :func:`variant_name`)."""
+    return f"{variant}_{task}_{Path(obj).stem}_seed{seed}"
+
+
 @dataclass(frozen=True)
 class TrialConfig:
     """What defines a trial's outcome (stored with it, checked on resume)."""
@@ -88,9 +94,9 @@ class TrialConfig:
 
     @property
     def name(self) -> str:
-        """File stem of the trial's record (a mesh path contributes its file stem)."""
+        """File stem of the trial's record, see :func:`trial_name`."""
         variant = variant_name(self.env, self.model, self.learned)
-        return f"{variant}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
+        return trial_name(variant, self.task, self.object, self.seed)
 
 
 def run_trial(

@@ -100,7 +100,7 @@ def collect(out: Path, envs: Sequence[str], labels: Sequence[str], trials: int) 
             records = []
             for task, obj in PAIRS[env]:
                 for seed in range(trials):
-                    path = folder / f"{env}_{task}_{obj}_seed{seed}.json"
+                    path = folder / f"{evaluate.trial_name(env, task, obj, seed)}.json"
                     if not path.exists():
                         raise FileNotFoundError(f"missing trial record {path}: run the sweep")
                     record = read_json(path)
