@@ -4,7 +4,7 @@
 :class:`ObjectContactNetwork` adds where the contact sits on the object and how the object is
 turned, and gives each friction facet its own value: per contact the features are
 ``[φ/scale, n_world (3), n_object (3), p_object/size (3), up_object (3)]`` with the normal
-``n`` and the contact point ``p`` (relative to the object's centre of mass) rotated into the
+``n`` and the contact point ``p`` (relative to the object's origin) rotated into the
 object's frame, and ``up`` the world's z axis seen from the object; the network outputs
 ``n_d`` positive values, one per facet row.
 """

@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import MPC_MODELS
 from torchcontact.mpc.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings, preset
-from torchcontact.mpc.suites import SUITES
+from torchcontact.mpc.suites import SCENES_VERSION, SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 
@@ -56,6 +56,7 @@ LEGACY_DEFAULTS = {
     "learned": None,
     "memory": PAPER.memory,
     "horizon": PAPER.horizon,
+    "scenes": 1,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -91,6 +92,7 @@ class TrialConfig:
     learned: str | None = None  # a learn-k checkpoint whose K(q), D(q) the MPC plans with
     memory: int = PAPER.memory  # L-BFGS memory
     horizon: int = PAPER.horizon  # T
+    scenes: int = SCENES_VERSION  # plants and samplers, see SCENES_VERSION
 
     @property
     def name(self) -> str:

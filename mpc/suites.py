@@ -20,6 +20,11 @@ from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.objects import object_names
 
+SCENES_VERSION = 2
+"""Version of the plants and samplers, stored with every trial record so that a resumed sweep
+reruns trials from older scenes. 2: object poses at the box centre, the reference scenes'
+per-object friction, Allegro sizes and placements."""
+
 
 @dataclass(frozen=True)
 class Suite:
@@ -123,9 +128,9 @@ SUITES: dict[str, Suite] = {
         tasks.ALLEGRO_SUCCESS,
         lambda env, task, obj, seed: tasks.sample_on_palm(
             env.resting_pose,
-            env.support_centre,
-            seed,
-            tasks.ON_PALM_OBJECT_YAW_RANGES.get(obj, tasks.ON_PALM_YAW_RANGE),
+            *tasks.ON_PALM_PLACEMENTS.get(obj, (env.support_centre, env.support_centre)),
+            seed=seed,
+            yaw_range=tasks.ON_PALM_OBJECT_YAW_RANGES.get(obj, tasks.ON_PALM_YAW_RANGE),
         ),
     ),
 }

@@ -56,7 +56,7 @@ class ObjectSettings:
     """Per-object numbers of the fingertip experiments (plant, sampler and model).
 
     Attributes:
-        rest_height: z [m] of the object origin (its centre of mass) resting upright on the
+        rest_height: z [m] of the object origin (its box centre) resting upright on the
             ground, for our meshes (``torchcontact.sim.objects``): the initial z and the
             rotation-task target z.
         flip_height: target z [m] of the flip task; None when the paper has no flip task.
@@ -131,10 +131,10 @@ OBJECT_SETTINGS: dict[str, ObjectSettings] = {
     # reference's lift above rest (0.009–0.059 m); 12 slots instead of 10 because a tip on a
     # seam between two parts touches both (11 contacts seen while squeezing it).
     "bunny": ObjectSettings(
-        rest_height=0.0342,
+        rest_height=0.054,
         flip_height=None,
         flip_pitch=False,
-        in_air_height=(0.0432, 0.0932),
+        in_air_height=(0.063, 0.113),
         object_friction=0.9,
         rotational_metric=0.06,
         contact_slots=12,
@@ -177,6 +177,30 @@ ON_PALM_YAW_RANGE = (-math.pi / 2, math.pi / 2)
 
 ON_PALM_OBJECT_YAW_RANGES = {"stick": (math.pi / 4, 3 * math.pi / 4)}
 """Per-object exceptions of the paper's code: the 13 cm stick starts across the palm."""
+
+ON_PALM_PLACEMENTS: dict[str, tuple[tuple[float, float], tuple[float, float]]] = {
+    "airplane": ((-0.03, -0.01), (-0.02, -0.01)),
+    "binoculars": ((-0.03, 0.0), (-0.01, 0.0)),
+    "bowl": ((-0.03, 0.0), (-0.03, -0.01)),
+    "bunny": ((-0.03, 0.0), (0.0, 0.0)),
+    "camera": ((-0.03, 0.0), (-0.01, 0.0)),
+    "can": ((-0.02, 0.0), (-0.01, 0.0)),
+    "cube": ((-0.03, -0.01), (-0.01, 0.0)),
+    "cup": ((-0.03, 0.0), (0.0, 0.0)),
+    "elephant": ((-0.02, 0.0), (-0.01, 0.0)),
+    "foam_brick": ((-0.01, 0.0), (-0.01, 0.0)),
+    "mug": ((0.0, 0.0), (0.0, 0.0)),
+    "piggy_bank": ((0.0, 0.0), (0.0, 0.0)),
+    "rubber_duck": ((-0.02, 0.0), (0.0, 0.0)),
+    "stick": ((-0.01, 0.0), (-0.01, 0.0)),
+    "teapot": ((-0.02, 0.0), (0.0, 0.0)),
+    "torus": ((-0.02, 0.0), (0.0, 0.0)),
+    "water_bottle": ((-0.02, 0.0), (0.0, 0.0)),
+}
+"""Allegro (initial x, y centre, target x, y) [m] per object in the hand's world frame (the
+palm spans x ∈ [−0.095, 0], fingers towards +x), from the paper's per-object settings: most
+objects start nearer the wrist and are to end nearer the fingers. Other objects use the palm
+centre for both."""
 
 
 # --- rotations ---------------------------------------------------------------------------
@@ -295,27 +319,42 @@ def sample_in_hand(resting_pose: RestingPose, seed: int) -> tuple[np.ndarray, np
 
 
 def sample_on_palm(
-    resting_pose: RestingPose, centre, seed: int, yaw_range: tuple[float, float] = ON_PALM_YAW_RANGE
+    resting_pose: RestingPose,
+    centre,
+    target_centre=None,
+    *,
+    seed: int,
+    yaw_range: tuple[float, float] = ON_PALM_YAW_RANGE,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Allegro on-palm trial ``seed``: initial and target poses ``(7,), (7,)``.
 
     Draws from ``np.random.default_rng(seed)``: initial x, y ~ ``centre (2,)`` + N(0,
     0.005²), yaw ~ U[``yaw_range``] [rad] (the paper's U[−π/2, π/2]; its code starts the stick
     in U[π/4, 3π/4], see :data:`ON_PALM_OBJECT_YAW_RANGES`), then the turn direction s = ±1
-    (fair coin); the target rests at the palm centre with yaw = initial yaw + s·π/2.
+    (fair coin); the target rests at ``target_centre (2,)`` (default ``centre``, see
+    :data:`ON_PALM_PLACEMENTS`) with yaw = initial yaw + s·π/2.
     """
     low, high = yaw_range
     if not (math.isfinite(low) and math.isfinite(high) and low <= high):
         raise ValueError(f"yaw_range must be finite (low, high) with low <= high, got {yaw_range}")
     rng = np.random.default_rng(_seed(seed))
-    centre = np.asarray(centre, dtype=float)
+    centre = as_xy("centre", centre)
     yaw = rng.uniform(low, high)
     initial = resting_pose(
         centre + ON_PALM_XY_STD * rng.standard_normal(2), quat_from_yaw_pitch_roll(yaw)
     )
     turn = np.pi / 2 if rng.uniform() < 0.5 else -np.pi / 2
-    target = resting_pose(centre, quat_from_yaw_pitch_roll(yaw + turn))
+    target_centre = centre if target_centre is None else as_xy("target_centre", target_centre)
+    target = resting_pose(target_centre, quat_from_yaw_pitch_roll(yaw + turn))
     return initial, target
+
+
+def as_xy(name: str, value) -> np.ndarray:
+    """``value`` as a finite ``(2,)`` float array, or a ``ValueError`` naming ``name``."""
+    xy = np.asarray(value, dtype=float)
+    if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+        raise ValueError(f"{name} must be 2 finite numbers (x, y) [m], got {value!r}")
+    return xy
 
 
 def _seed(seed) -> int:

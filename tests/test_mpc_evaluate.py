@@ -8,6 +8,7 @@ import pytest
 from torchcontact.cli import main
 from torchcontact.mpc import evaluate
 from torchcontact.mpc.evaluate import SUMMARY_KEYS, parse_args, summarize
+from torchcontact.mpc.suites import SCENES_VERSION
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
@@ -76,6 +77,21 @@ def test_records_written_before_the_model_and_solver_options_still_resume(tmp_pa
     )
     monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: pytest.fail("run again"))
     assert main([*ARGS, *FAST, "--out", str(out)]) == 0
+
+
+def test_records_of_older_scenes_are_run_again(tmp_path, monkeypatch):
+    """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ."""
+    out = tmp_path / "out"
+    main([*ARGS, *FAST, "--out", str(out)])
+    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
+    record = json.loads(path.read_text())
+    assert record["scenes"] == SCENES_VERSION
+    path.write_text(json.dumps({k: v for k, v in record.items() if k != "scenes"}))
+    reruns = []
+    real = evaluate.run_trial
+    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: reruns.append(1) or real(*a, **k))
+    assert main([*ARGS, *FAST, "--out", str(out)]) == 0
+    assert reruns == [1] and json.loads(path.read_text())["scenes"] == SCENES_VERSION
 
 
 @pytest.mark.parametrize(

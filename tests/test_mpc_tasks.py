@@ -20,6 +20,7 @@ from torchcontact.mpc.tasks import (
     quaternion_error,
     sample,
 )
+from torchcontact.sim.objects import object_names
 
 SEEDS = range(tasks.TRIALS)
 
@@ -163,7 +164,7 @@ def test_on_palm_targets_turn_a_quarter_either_way():
     centre = np.array([-0.03, -0.01])
     turns = []
     for seed in range(40):
-        initial, target = tasks.sample_on_palm(_flat_rest, centre, seed)
+        initial, target = tasks.sample_on_palm(_flat_rest, centre, seed=seed)
         assert np.linalg.norm(initial[:2] - centre) < 0.03
         np.testing.assert_allclose(target[:2], centre)
         angle = tasks.angle_error(initial[3:], target[3:])
@@ -176,11 +177,21 @@ def test_on_palm_yaw_range_and_the_sticks_exception():
     low, high = tasks.ON_PALM_OBJECT_YAW_RANGES["stick"]
     assert (low, high) == (np.pi / 4, 3 * np.pi / 4)
     for seed in range(20):
-        initial, _ = tasks.sample_on_palm(_flat_rest, np.zeros(2), seed, (low, high))
+        initial, _ = tasks.sample_on_palm(_flat_rest, np.zeros(2), seed=seed, yaw_range=(low, high))
         yaw = 2 * np.arctan2(initial[6], initial[3])
         assert low <= yaw <= high
     with pytest.raises(ValueError, match="yaw_range"):
-        tasks.sample_on_palm(_flat_rest, np.zeros(2), 0, (1.0, 0.0))
+        tasks.sample_on_palm(_flat_rest, np.zeros(2), seed=0, yaw_range=(1.0, 0.0))
+
+
+def test_on_palm_placements_start_and_end_where_the_paper_puts_each_object():
+    start, end = tasks.ON_PALM_PLACEMENTS["bunny"]
+    initial, target = tasks.sample_on_palm(_flat_rest, start, end, seed=3)
+    assert np.linalg.norm(initial[:2] - start) < 0.03
+    np.testing.assert_allclose(target[:2], end)
+    assert set(tasks.ON_PALM_PLACEMENTS) == set(object_names())
+    with pytest.raises(ValueError, match="target_centre"):
+        tasks.sample_on_palm(_flat_rest, start, (0.0, np.nan), seed=0)
 
 
 def test_hand_criteria():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -74,12 +75,34 @@ def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
     assert float(rise.max()) < 1e-3
 
 
-def test_allegro_objects_use_the_papers_heavier_cube_and_stick():
+def test_allegro_objects_use_the_papers_masses_and_sizes():
     cube = HandEnv("allegro", "cube")
     np.testing.assert_allclose(cube.object.size, [0.05] * 3, rtol=1e-6)
     assert cube.object.mass == 0.1 and HandEnv("allegro", "stick").object.mass == 0.1
     assert HandEnv("allegro", "bunny").object.mass == 0.01
     assert HandEnv("trifinger", "cube").object.mass == 0.01
+    airplane = HandEnv("allegro", "airplane").object.size
+    np.testing.assert_allclose(airplane, 0.9 * HandEnv("trifinger", "airplane").object.size)
+
+
+def _sliding_friction(env, geom_body: int) -> float:
+    geoms = np.flatnonzero(env.model.geom_bodyid == geom_body)
+    return float(env.model.geom_friction[geoms[0], 0])
+
+
+def test_per_object_friction_of_the_reference_scenes():
+    """TriFinger: a 0.9 table under the cube, 0.5 under the meshes; Allegro: the binoculars
+    have friction 0.9. Read back from the compiled MuJoCo models."""
+    for obj, expected in (("cube", 0.9), ("stick", 0.5)):
+        env = HandEnv("trifinger", obj)
+        ground_geom = env.model.geom("ground").id
+        assert env.model.geom_friction[ground_geom, 0] == pytest.approx(expected)
+        assert env.ground_friction == pytest.approx(expected)
+    obj_body = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    assert _sliding_friction(env, obj_body) == pytest.approx(0.5)
+    binoculars = HandEnv("allegro", "binoculars")
+    obj_body = mujoco.mj_name2id(binoculars.model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    assert _sliding_friction(binoculars, obj_body) == pytest.approx(0.9)
 
 
 def test_state_layout_reset_and_target(cube_env):

@@ -49,7 +49,8 @@ def test_every_object_builds_at_its_listed_size_and_mass(name):
     np.testing.assert_allclose(np.ptp(vertices, axis=0), OBJECT_SIZES[name], atol=1e-3)
     np.testing.assert_allclose(obj.size, OBJECT_SIZES[name], atol=1e-9)
     assert model.body_mass[body] == pytest.approx(0.01)
-    np.testing.assert_allclose(model.body_ipos[body], 0.0, atol=1e-12)  # origin = CoM
+    np.testing.assert_allclose(vertices.min(0) + vertices.max(0), 0.0, atol=1e-6)  # box centre
+    np.testing.assert_allclose(model.body_ipos[body], obj.centre_of_mass, atol=1e-9)
     principal = np.sort(model.body_inertia[body])
     assert principal[0] > 0 and principal[0] + principal[1] >= principal[2]
     goal = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "goal")
@@ -75,8 +76,15 @@ def test_grid_mass_properties_match_exact_integrals_on_a_convex_mesh(tmp_path):
     obj = load_object(path, 0.08, mass=0.01, decomposition="hull")
     exact = obj.parts[0].copy()
     exact.density = 0.01 / exact.volume
-    np.testing.assert_allclose(exact.center_mass, 0.0, atol=2e-4)  # origin at the CoM
+    np.testing.assert_allclose(obj.centre_of_mass, exact.center_mass, atol=2e-4)
     np.testing.assert_allclose(obj.inertia, exact.moment_inertia, atol=0.01 * obj.inertia.max())
+
+
+def test_the_origin_of_a_bottom_heavy_object_is_its_box_centre():
+    """The bunny's mass sits low in its box; its pose is still that of the box centre."""
+    bunny = make_object("bunny")
+    assert bunny.centre_of_mass[2] < -0.01
+    assert bunny.resting_height() == pytest.approx(OBJECT_SIZES["bunny"][2] / 2)
 
 
 def test_resting_height_of_a_turned_cube():

@@ -19,7 +19,7 @@ import numpy as np
 
 from torchcontact.assets import asset_path
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.objects import ObjectMesh
+from torchcontact.sim.objects import OBJECT_SIZES, ObjectMesh
 from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
@@ -27,6 +27,22 @@ ROBOT_PREFIX = "robot/"
 """Prefix of every name the robot's file brings into a scene."""
 
 SERVOS = ("pd", "position")
+
+
+@dataclass(frozen=True)
+class ObjectOverride:
+    """Where one object's experiment departs from its hand's defaults (None: the default).
+
+    Attributes:
+        mass: object mass [kg].
+        size: bounding box (x, y, z) [m] of a built-in object.
+        object_friction, ground_friction: sliding friction of the object and of the ground.
+    """
+
+    mass: float | None = None
+    size: tuple[float, float, float] | None = None
+    object_friction: float | None = None
+    ground_friction: float | None = None
 
 
 @dataclass(frozen=True)
@@ -43,13 +59,15 @@ class Hand:
             substep (gravity and Coriolis compensated); ``"position"``: the file's position
             actuators get ``ctrl = q_des`` (their gain and the joints' damping act).
         kp, kd: PD gains [N·m/rad], [N·m·s/rad] (``"pd"`` only).
-        object_friction, ground_friction: sliding friction of object and ground.
+        object_friction, ground_friction: sliding friction of object and ground (defaults;
+            ``object_overrides`` may change them per object).
         support_site: the site an object rests on (the palm centre), None for the ground.
         ground_height: z of the ground plane [m].
         camera_position, camera_target: of the ``"overview"`` camera [m].
         elliptic, impratio: friction cone of the plant (MuJoCo's default pyramidal, 1).
-        object_mass: default object mass [kg]; ``object_overrides`` maps object names to
-            ``(mass [kg], size (x, y, z) [m] or None)`` where an experiment differs.
+        object_mass: default object mass [kg].
+        object_overrides: object name ↦ :class:`ObjectOverride`, where the paper's scene of
+            that object differs from the defaults.
     """
 
     name: str
@@ -69,9 +87,12 @@ class Hand:
     elliptic: bool = False
     impratio: float = 1.0
     object_mass: float = 0.01
-    object_overrides: dict[str, tuple[float, tuple[float, float, float] | None]] = field(
-        default_factory=dict
-    )
+    object_overrides: dict[str, ObjectOverride] = field(default_factory=dict)
+
+    def override(self, obj) -> ObjectOverride:
+        """The overrides of built-in object ``obj`` (none for other names and meshes)."""
+        overrides = self.object_overrides.get(obj) if isinstance(obj, str) else None
+        return overrides or ObjectOverride()
 
     @property
     def n_joints(self) -> int:
@@ -81,6 +102,12 @@ class Hand:
     def mjcf(self) -> Path:
         """Path of the robot's model file."""
         return asset_path(self.asset)
+
+
+def _scaled(obj: str, factor: float) -> tuple[float, float, float]:
+    """The listed size of built-in ``obj`` times ``factor`` [m]."""
+    x, y, z = OBJECT_SIZES[obj]
+    return (x * factor, y * factor, z * factor)
 
 
 TRIFINGER = Hand(
@@ -93,8 +120,10 @@ TRIFINGER = Hand(
     kp=10.0,
     kd=0.05,
     object_friction=0.5,
-    ground_friction=0.9,
+    # the reference scenes: a 0.9 table under the cube, 0.5 under every mesh object
+    ground_friction=0.5,
     camera_position=(0.0, -0.45, 0.45),
+    object_overrides={"cube": ObjectOverride(ground_friction=0.9)},
 )
 
 ALLEGRO = Hand(
@@ -128,7 +157,15 @@ ALLEGRO = Hand(
     camera_position=(0.0, -0.3, 0.3),
     elliptic=True,
     impratio=10.0,
-    object_overrides={"cube": (0.1, (0.05, 0.05, 0.05)), "stick": (0.1, None)},
+    # the reference scenes: a heavier cube and stick, binoculars with friction 0.9, and three
+    # meshes scaled smaller than on the TriFinger (whose scale the listed sizes are)
+    object_overrides={
+        "cube": ObjectOverride(mass=0.1, size=(0.05, 0.05, 0.05)),
+        "stick": ObjectOverride(mass=0.1),
+        "binoculars": ObjectOverride(object_friction=0.9, size=_scaled("binoculars", 0.65 / 0.75)),
+        "airplane": ObjectOverride(size=_scaled("airplane", 0.9)),
+        "bunny": ObjectOverride(size=_scaled("bunny", 0.9)),
+    },
 )
 
 HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
@@ -195,10 +232,12 @@ class HandEnv(Plant):
         if not (math.isfinite(timestep) and timestep > 0):
             raise ValueError(f"timestep must be a positive finite number, got {timestep!r}")
         self.hand = hand
-        override_mass, size = hand.object_overrides.get(obj, (None, None))
+        override = hand.override(obj)
         if mass is None:
-            mass = override_mass or hand.object_mass
-        self.object = resolve_object(obj, object_size, mass, size)
+            mass = override.mass or hand.object_mass
+        self.object = resolve_object(obj, object_size, mass, override.size)
+        self.object_friction = override.object_friction or hand.object_friction
+        self.ground_friction = override.ground_friction or hand.ground_friction
         spec = self._scene_spec(condim)
         spec.option.timestep = timestep
         self.model = spec.compile()
@@ -236,8 +275,8 @@ class HandEnv(Plant):
         spec = scene_spec(
             f"{hand.name}_{self.object.name}",
             self.object,
-            object_friction=hand.object_friction,
-            ground_friction=hand.ground_friction,
+            object_friction=self.object_friction,
+            ground_friction=self.ground_friction,
             condim=condim,
             camera_position=hand.camera_position,
             camera_target=hand.camera_target,

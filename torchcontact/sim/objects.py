@@ -5,8 +5,10 @@ parts (its convex decomposition). The procedural shapes below are built from con
 (boxes, ellipsoids, cylinders, hulls, sectors of revolved profiles), so they come decomposed:
 a cup's wall is a ring of wall segments, a torus a ring of tube segments, and the hole stays
 open to the fingertips. Every object is scaled per axis so the bounding box of the union is
-the listed size, then moved so the body origin is its centre of mass. Mass properties are
-those of the union with uniform density (overlapping parts count once).
+the listed size, with the body origin at the centre of its bounding box: the origin of the
+paper's object meshes (the reference code spawns each at about half its height), so the pose
+the costs and success criteria see is the same point. Mass properties are those of the union
+with uniform density (overlapping parts count once), the centre of mass given to MuJoCo.
 """
 
 from __future__ import annotations
@@ -53,19 +55,21 @@ _GRID = 64  # cells per axis of the mass-property grid: ≈ 1 % error at most on
 
 @dataclass(frozen=True, eq=False)
 class ObjectMesh:
-    """A rigid object: convex parts in its body frame, whose origin is the centre of mass.
+    """A rigid object: convex parts in its body frame, whose origin is the bounding-box centre.
 
     Attributes:
         name: identifier, also the prefix of its MuJoCo mesh assets.
         parts: convex, watertight meshes [m] whose union is the object.
         mass: total mass [kg].
-        inertia: ``(3, 3)`` inertia tensor about the origin, body axes [kg·m²].
+        inertia: ``(3, 3)`` inertia tensor about the centre of mass, body axes [kg·m²].
+        centre_of_mass: ``(3,)`` in the body frame [m].
     """
 
     name: str
     parts: tuple[trimesh.Trimesh, ...]
     mass: float
     inertia: np.ndarray
+    centre_of_mass: np.ndarray
 
     @property
     def vertices(self) -> np.ndarray:
@@ -163,7 +167,7 @@ def add_object(
     body.add_freejoint(name=f"{body_name}_free")
     body.explicitinertial = True
     body.mass = obj.mass
-    body.ipos = [0.0, 0.0, 0.0]
+    body.ipos = obj.centre_of_mass.tolist()
     i = obj.inertia
     body.fullinertia = [i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]
     for mesh_name in _add_meshes(spec, obj):
@@ -206,14 +210,13 @@ def add_goal_marker(
 def _assemble(
     name: str, parts: Sequence[trimesh.Trimesh], size: np.ndarray, mass: float
 ) -> ObjectMesh:
-    """Scale the union of ``parts`` to the box ``size``, centre it at its centre of mass."""
+    """Scale the union of ``parts`` to the box ``size``, centred on its bounding box."""
     vertices = np.concatenate([p.vertices for p in parts])
     low, high = vertices.min(0), vertices.max(0)
     scale = size / (high - low)
-    fitted = [_convex((p.vertices - (low + high) / 2) * scale) for p in parts]
+    fitted = tuple(_convex((p.vertices - (low + high) / 2) * scale) for p in parts)
     centre, inertia = _union_mass_properties(fitted, mass)
-    centred = tuple(_convex(p.vertices - centre) for p in fitted)
-    return ObjectMesh(name=name, parts=centred, mass=mass, inertia=inertia)
+    return ObjectMesh(name=name, parts=fitted, mass=mass, inertia=inertia, centre_of_mass=centre)
 
 
 def _union_mass_properties(
