@@ -35,12 +35,25 @@ def grasp_cost(p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor) -> torch
     return in_object_frame.sum(-2).square().sum(-1)
 
 
+def height_bound_cost(tips: torch.Tensor, low: float, high: float) -> torch.Tensor:
+    """``Σᵢ (max(0, low − zᵢ)² + max(0, zᵢ − high)²)`` [m²] of tip heights outside
+    ``[low, high]``, shape ``(...)`` for ``tips (..., n_tips, 3)``."""
+    z = tips[..., 2]
+    return ((low - z).clamp_min(0).square() + (z - high).clamp_min(0).square()).sum(-1)
+
+
 @dataclass(frozen=True)
 class ManipulationCost:
     """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights (TASKS.md table).
 
     c = contact·Σ‖p − tip‖² + grasp·‖Σ Rᵀd̂ᵢ‖² + control·‖u‖²;
     V = final·(position·‖p − p*‖² + orientation·(1 − ⟨q, q*⟩²)).
+
+    ``tip_height = (low, high)`` [m] bounds the fingertips' planned heights q₁…q_T, as the
+    paper's fingertip MPC does with hard state bounds (z ≥ 0, and z ≤ 0.1 m for the foam brick
+    and stick): here a quadratic penalty of weight ``tip_height_weight`` [1/m²] on the excess,
+    since the L-BFGS box holds the controls only. The model has no tip–ground contact, so
+    without it a plan may push a tip through the floor to lift the object from below.
     """
 
     contact: float = 1.0
@@ -49,6 +62,8 @@ class ManipulationCost:
     position: float = 500.0
     orientation: float = 5.0
     final: float = 10.0
+    tip_height: tuple[float, float] | None = None
+    tip_height_weight: float = 1e5
 
     def __call__(
         self,
@@ -77,4 +92,8 @@ class ManipulationCost:
         final = self.position * position_cost(
             positions[..., -1, :], target_position
         ) + self.orientation * quaternion_cost(quats[..., -1, :], target_quat)
-        return path + self.final * final
+        total = path + self.final * final
+        if self.tip_height is not None:
+            bound = height_bound_cost(tips[..., 1:, :, :], *self.tip_height).sum(-1)
+            total = total + self.tip_height_weight * bound
+        return total

@@ -22,8 +22,9 @@ from torchcontact.sim.objects import object_names
 
 SCENES_VERSION = 2
 """Version of the plants and samplers, stored with every trial record so that a resumed sweep
-reruns trials from older scenes. 2: object poses at the box centre, the reference scenes'
-per-object friction, Allegro sizes and placements."""
+reruns trials from older scenes. 2: object poses at the box centre (bunny and cup lower, as
+the reference's meshes), the reference scenes' per-object friction, Allegro sizes and
+placements."""
 
 
 @dataclass(frozen=True)

@@ -66,7 +66,8 @@ class ObjectSettings:
         rotational_metric: angular diagonal of the object metric εMₒ/h² in the model.
         contact_slots: contact slots nc of the model.
         model_step: the model's time step h [s].
-        tip_height_max: upper bound [m] on tip z in the MPC (lower bound 0); None: unbounded.
+        tip_height_max: the paper's upper bound [m] on planned tip z (lower bound 0), None:
+            unbounded; applied by ``fingertips_mpc(obj, bound_tips=True)``.
         translational_metric: linear diagonal of εMₒ/h² (50 for every object).
     """
 
@@ -131,10 +132,10 @@ OBJECT_SETTINGS: dict[str, ObjectSettings] = {
     # reference's lift above rest (0.009–0.059 m); 12 slots instead of 10 because a tip on a
     # seam between two parts touches both (11 contacts seen while squeezing it).
     "bunny": ObjectSettings(
-        rest_height=0.054,
+        rest_height=0.03,
         flip_height=None,
         flip_pitch=False,
-        in_air_height=(0.063, 0.113),
+        in_air_height=(0.039, 0.089),
         object_friction=0.9,
         rotational_metric=0.06,
         contact_slots=12,

@@ -1,5 +1,7 @@
 """The contact-implicit MPC: rollout, gradients, box, warm start and a closed-loop smoke run."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -172,3 +174,22 @@ def test_bad_arguments_name_themselves(env, mpc):
     q, contacts = _touching_state(env)
     with pytest.raises(ValueError, match="q"):
         mpc.plan(q[:10], contacts, torch.zeros(3, dtype=DT), torch.tensor([1.0, 0, 0, 0]))
+
+
+def test_planned_tip_heights_are_bounded_as_in_the_papers_fingertip_mpc():
+    """z ≥ 0 for every object, z ≤ 0.1 m for the stick: the penalty is weight × excess² summed
+    over the planned states q₁…q_T (not q₀, which the plan cannot change)."""
+    assert fingertips_mpc("stick").cost.tip_height is None  # off by default
+    assert fingertips_mpc("stick", bound_tips=True).cost.tip_height == (0.0, 0.1)
+    cost = fingertips_mpc("cube", bound_tips=True).cost
+    assert cost.tip_height == (0.0, float("inf"))
+    free = dataclasses.replace(cost, tip_height=None)
+    T = 4
+    positions = torch.zeros(T + 1, 3, dtype=DT)
+    quats = torch.tensor([1.0, 0, 0, 0], dtype=DT).expand(T + 1, 4)
+    tips = torch.full((T + 1, 3, 3), 0.02, dtype=DT)
+    tips[0, 0, 2] = -0.05  # the current state: not penalised
+    tips[2, 1, 2] = -0.003  # a planned tip 3 mm below the floor
+    args = (positions, quats, tips, torch.zeros(T, 9, dtype=DT), positions[0], quats[0])
+    extra = cost(*args) - free(*args)
+    torch.testing.assert_close(extra, torch.tensor(cost.tip_height_weight * 0.003**2, dtype=DT))

@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from torchcontact.sim.objects import (
+    OBJECT_ORIGIN_HEIGHTS,
     OBJECT_SIZES,
     add_goal_marker,
     add_object,
@@ -49,7 +50,10 @@ def test_every_object_builds_at_its_listed_size_and_mass(name):
     np.testing.assert_allclose(np.ptp(vertices, axis=0), OBJECT_SIZES[name], atol=1e-3)
     np.testing.assert_allclose(obj.size, OBJECT_SIZES[name], atol=1e-9)
     assert model.body_mass[body] == pytest.approx(0.01)
-    np.testing.assert_allclose(vertices.min(0) + vertices.max(0), 0.0, atol=1e-6)  # box centre
+    centre = (vertices.min(0) + vertices.max(0)) / 2
+    origin_height = OBJECT_ORIGIN_HEIGHTS.get(name, OBJECT_SIZES[name][2] / 2)
+    np.testing.assert_allclose(centre[:2], 0.0, atol=1e-6)
+    assert -vertices[:, 2].min() == pytest.approx(origin_height, abs=1e-6)
     np.testing.assert_allclose(model.body_ipos[body], obj.centre_of_mass, atol=1e-9)
     principal = np.sort(model.body_inertia[body])
     assert principal[0] > 0 and principal[0] + principal[1] >= principal[2]
@@ -81,10 +85,17 @@ def test_grid_mass_properties_match_exact_integrals_on_a_convex_mesh(tmp_path):
 
 
 def test_the_origin_of_a_bottom_heavy_object_is_its_box_centre():
-    """The bunny's mass sits low in its box; its pose is still that of the box centre."""
-    bunny = make_object("bunny")
-    assert bunny.centre_of_mass[2] < -0.01
-    assert bunny.resting_height() == pytest.approx(OBJECT_SIZES["bunny"][2] / 2)
+    """The duck's mass sits low in its box; its pose is still that of the box centre."""
+    duck = make_object("rubber_duck")
+    assert duck.centre_of_mass[2] < -0.005
+    assert duck.resting_height() == pytest.approx(OBJECT_SIZES["rubber_duck"][2] / 2)
+
+
+def test_origins_lower_than_the_box_centre_scale_with_the_object():
+    assert make_object("bunny").resting_height() == pytest.approx(0.03)
+    assert make_object("cup").resting_height() == pytest.approx(0.02)
+    smaller = make_object("bunny", size=np.multiply(OBJECT_SIZES["bunny"], 0.9))
+    assert smaller.resting_height() == pytest.approx(0.027)
 
 
 def test_resting_height_of_a_turned_cube():

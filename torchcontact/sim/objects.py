@@ -6,8 +6,9 @@ parts (its convex decomposition). The procedural shapes below are built from con
 a cup's wall is a ring of wall segments, a torus a ring of tube segments, and the hole stays
 open to the fingertips. Every object is scaled per axis so the bounding box of the union is
 the listed size, with the body origin at the centre of its bounding box: the origin of the
-paper's object meshes (the reference code spawns each at about half its height), so the pose
-the costs and success criteria see is the same point. Mass properties are those of the union
+paper's object meshes (the reference code spawns each at about half its height; its bunny and
+cup lower, see :data:`OBJECT_ORIGIN_HEIGHTS`), so the pose the costs and success criteria see
+is the same point. Mass properties are those of the union
 with uniform density (overlapping parts count once), the centre of mass given to MuJoCo.
 """
 
@@ -49,13 +50,18 @@ OBJECT_SIZES: dict[str, tuple[float, float, float]] = {
 }
 """Bounding box (x, y, z) [m] of each object in its body frame, z up when resting upright."""
 
+OBJECT_ORIGIN_HEIGHTS: dict[str, float] = {"bunny": 0.030, "cup": 0.020}
+"""Height [m] of the body origin above the bottom, at the listed size, where the paper's mesh
+has its origin lower than its box centre (the reference spawns its bunny at 0.03 m and its cup
+at 0.025 m with the mesh 0.02 m lower); every other object has its origin at the box centre."""
+
 DECOMPOSITIONS = ("auto", "coacd", "hull")
 _GRID = 64  # cells per axis of the mass-property grid: ≈ 1 % error at most on the shapes below
 
 
 @dataclass(frozen=True, eq=False)
 class ObjectMesh:
-    """A rigid object: convex parts in its body frame, whose origin is the bounding-box centre.
+    """A rigid object: convex parts in its body frame (origin: the box centre, by default).
 
     Attributes:
         name: identifier, also the prefix of its MuJoCo mesh assets.
@@ -101,11 +107,16 @@ def object_names() -> tuple[str, ...]:
 def make_object(
     name: str, mass: float = DEFAULT_MASS, size: Sequence[float] | None = None
 ) -> ObjectMesh:
-    """Built-in object ``name`` scaled to ``size`` (x, y, z) [m], default its listed size."""
+    """Built-in object ``name`` scaled to ``size`` (x, y, z) [m], default its listed size; the
+    origin at the box centre or at :data:`OBJECT_ORIGIN_HEIGHTS` (scaled with the height)."""
     if name not in _SHAPES:
         raise ValueError(f"name must be one of {object_names()}, got {name!r}")
-    target = _positive_vector("size", OBJECT_SIZES[name] if size is None else size, 3)
-    return _assemble(name, _SHAPES[name](), target, _positive_scalar("mass", mass))
+    listed = OBJECT_SIZES[name]
+    target = _positive_vector("size", listed if size is None else size, 3)
+    origin = OBJECT_ORIGIN_HEIGHTS.get(name, listed[2] / 2) * target[2] / listed[2]
+    return _assemble(
+        name, _SHAPES[name](), target, _positive_scalar("mass", mass), origin_height=origin
+    )
 
 
 def load_object(
@@ -208,13 +219,20 @@ def add_goal_marker(
 
 
 def _assemble(
-    name: str, parts: Sequence[trimesh.Trimesh], size: np.ndarray, mass: float
+    name: str,
+    parts: Sequence[trimesh.Trimesh],
+    size: np.ndarray,
+    mass: float,
+    origin_height: float | None = None,
 ) -> ObjectMesh:
-    """Scale the union of ``parts`` to the box ``size``, centred on its bounding box."""
+    """Scale the union of ``parts`` to the box ``size``, centred on its bounding box, the origin
+    ``origin_height`` [m] above its bottom (default half the height: the box centre)."""
     vertices = np.concatenate([p.vertices for p in parts])
     low, high = vertices.min(0), vertices.max(0)
     scale = size / (high - low)
-    fitted = tuple(_convex((p.vertices - (low + high) / 2) * scale) for p in parts)
+    lift = 0.0 if origin_height is None else size[2] / 2 - origin_height
+    offset = np.array([0.0, 0.0, lift])
+    fitted = tuple(_convex((p.vertices - (low + high) / 2) * scale + offset) for p in parts)
     centre, inertia = _union_mass_properties(fitted, mass)
     return ObjectMesh(name=name, parts=fitted, mass=mass, inertia=inertia, centre_of_mass=centre)
 
