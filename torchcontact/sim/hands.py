@@ -233,11 +233,15 @@ class HandEnv(Plant):
             raise ValueError(f"timestep must be a positive finite number, got {timestep!r}")
         self.hand = hand
         override = hand.override(obj)
+
+        def chosen(value, default):  # an override of 0 still counts
+            return default if value is None else value
+
         if mass is None:
-            mass = override.mass or hand.object_mass
+            mass = chosen(override.mass, hand.object_mass)
         self.object = resolve_object(obj, object_size, mass, override.size)
-        self.object_friction = override.object_friction or hand.object_friction
-        self.ground_friction = override.ground_friction or hand.ground_friction
+        self.object_friction = chosen(override.object_friction, hand.object_friction)
+        self.ground_friction = chosen(override.ground_friction, hand.ground_friction)
         spec = self._scene_spec(condim)
         spec.option.timestep = timestep
         self.model = spec.compile()
