@@ -56,9 +56,9 @@ class ObjectSettings:
     """Per-object numbers of the fingertip experiments (plant, sampler and model).
 
     Attributes:
-        rest_height: z [m] of the object origin (its box centre) resting upright on the
-            ground, for our meshes (``torchcontact.sim.objects``): the initial z and the
-            rotation-task target z.
+        rest_height: z [m] of the object origin (its box centre; the bunny's lower, see
+            ``OBJECT_ORIGIN_HEIGHTS``) resting upright on the ground, for our meshes
+            (``torchcontact.sim.objects``): the initial z and the rotation-task target z.
         flip_height: target z [m] of the flip task; None when the paper has no flip task.
         flip_pitch: whether flip targets tilt in pitch as well as roll (False: roll only).
         in_air_height: (low, high) range [m] of in-air target z; None without that task.

@@ -8,8 +8,8 @@ open to the fingertips. Every object is scaled per axis so the bounding box of t
 the listed size, with the body origin at the centre of its bounding box: the origin of the
 paper's object meshes (the reference code spawns each at about half its height; its bunny and
 cup lower, see :data:`OBJECT_ORIGIN_HEIGHTS`), so the pose the costs and success criteria see
-is the same point. Mass properties are those of the union
-with uniform density (overlapping parts count once), the centre of mass given to MuJoCo.
+is the same point. Mass properties are those of the union with uniform density (overlapping
+parts count once); the centre of mass is given to MuJoCo.
 """
 
 from __future__ import annotations
