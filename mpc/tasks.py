@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from torchcontact.sim.plant import as_vector
+
 TASKS = ("rotation", "flip", "in-air")
 """On-ground rotation, on-ground flip, and in-air manipulation."""
 
@@ -339,23 +341,15 @@ def sample_on_palm(
     if not (math.isfinite(low) and math.isfinite(high) and low <= high):
         raise ValueError(f"yaw_range must be finite (low, high) with low <= high, got {yaw_range}")
     rng = np.random.default_rng(_seed(seed))
-    centre = as_xy("centre", centre)
+    centre = as_vector("centre", centre, 2)
     yaw = rng.uniform(low, high)
     initial = resting_pose(
         centre + ON_PALM_XY_STD * rng.standard_normal(2), quat_from_yaw_pitch_roll(yaw)
     )
     turn = np.pi / 2 if rng.uniform() < 0.5 else -np.pi / 2
-    target_centre = centre if target_centre is None else as_xy("target_centre", target_centre)
-    target = resting_pose(target_centre, quat_from_yaw_pitch_roll(yaw + turn))
+    end = centre if target_centre is None else as_vector("target_centre", target_centre, 2)
+    target = resting_pose(end, quat_from_yaw_pitch_roll(yaw + turn))
     return initial, target
-
-
-def as_xy(name: str, value) -> np.ndarray:
-    """``value`` as a finite ``(2,)`` float array, or a ``ValueError`` naming ``name``."""
-    xy = np.asarray(value, dtype=float)
-    if xy.shape != (2,) or not np.all(np.isfinite(xy)):
-        raise ValueError(f"{name} must be 2 finite numbers (x, y) [m], got {value!r}")
-    return xy
 
 
 def _seed(seed) -> int:
