@@ -35,6 +35,18 @@ def grasp_cost(p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor) -> torch
     return in_object_frame.sum(-2).square().sum(-1)
 
 
+def up_axis(quat: torch.Tensor) -> torch.Tensor:
+    """``R(q) ẑ (..., 3)``: the body's z axis in the world, for quaternions ``(..., 4)``."""
+    w, x, y, z = quat.unbind(-1)
+    return torch.stack((2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)), -1)
+
+
+def tilt_cost(quat: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``1 − ⟨R(q)ẑ, R(q*)ẑ⟩`` in [0, 2], shape ``(...)``: how far the body's z axis leans away
+    from the target's, blind to turns about it (0 at any yaw of an upright target)."""
+    return 1.0 - (up_axis(quat) * up_axis(target)).sum(-1)
+
+
 def height_bound_cost(tips: torch.Tensor, low: float, high: float) -> torch.Tensor:
     """``Σᵢ (max(0, low − zᵢ)² + max(0, zᵢ − high)²)`` [m²] of tip heights outside
     ``[low, high]``, shape ``(...)`` for ``tips (..., n_tips, 3)``."""
@@ -46,8 +58,12 @@ def height_bound_cost(tips: torch.Tensor, low: float, high: float) -> torch.Tens
 class ManipulationCost:
     """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights (TASKS.md table).
 
-    c = contact·Σ‖p − tip‖² + grasp·‖Σ Rᵀd̂ᵢ‖² + control·‖u‖²;
+    c = contact·Σ‖p − tip‖² + grasp·‖Σ Rᵀd̂ᵢ‖² + control·‖u‖² (+ tilt·(1 − ⟨R(q)ẑ, R(q*)ẑ⟩));
     V = final·(position·‖p − p*‖² + orientation·(1 − ⟨q, q*⟩²)).
+
+    ``tilt`` (ours, default off) charges every planned state q₁…q_T for leaning its z axis away
+    from the target's: the MPC then avoids pushes that its model predicts tip the object over,
+    while turning it about that axis stays free.
 
     ``tip_height = (low, high)`` [m] bounds the fingertips' planned heights q₁…q_T, as the
     paper's fingertip MPC does with hard state bounds (z ≥ 0, and z ≤ 0.1 m for the foam brick
@@ -64,6 +80,7 @@ class ManipulationCost:
     final: float = 10.0
     tip_height: tuple[float, float] | None = None
     tip_height_weight: float = 1e5
+    tilt: float = 0.0
 
     def __call__(
         self,
@@ -89,6 +106,9 @@ class ManipulationCost:
             + self.grasp * grasp_cost(p, quat, tip)
             + self.control * controls.square().sum(-1)
         ).sum(-1)
+        if self.tilt:
+            target = target_quat.unsqueeze(-2)
+            path = path + self.tilt * tilt_cost(quats[..., 1:, :], target).sum(-1)
         final = self.position * position_cost(
             positions[..., -1, :], target_position
         ) + self.orientation * quaternion_cost(quats[..., -1, :], target_quat)

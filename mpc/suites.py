@@ -20,11 +20,12 @@ from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.objects import object_names
 
-SCENES_VERSION = 2
-"""Version of the plants and samplers, stored with every trial record so that a resumed sweep
-reruns trials from older scenes. 2: object poses at the box centre (bunny and cup lower, as
-the reference's meshes), the reference scenes' per-object friction, Allegro sizes and
-placements."""
+SCENES_VERSION = 3
+"""Version of the plants, samplers and MPC costs, stored with every trial record so that a
+resumed sweep reruns trials from older versions. 2: object poses at the box centre (bunny and
+cup lower, as the reference's meshes), the reference scenes' per-object friction, Allegro sizes
+and placements. 3: the rubber duck and the teapot stand on flat bases (their round bottoms
+rolled them off the upright resting pose the samplers assume); the TriFinger MPC's tilt cost."""
 
 
 @dataclass(frozen=True)

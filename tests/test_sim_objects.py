@@ -64,6 +64,25 @@ def test_every_object_builds_at_its_listed_size_and_mass(name):
     assert not model.geom_contype[goal_geoms].any() and not model.geom_conaffinity[goal_geoms].any()
 
 
+@pytest.mark.parametrize("name", object_names())
+def test_every_object_stays_upright_where_it_is_set_down(name):
+    # The samplers set objects down upright and take that as the resting pose: an object
+    # that rolls off it (a round bottom) fails its task before the robot touches it.
+    obj = make_object(name)
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], condim=6)
+    add_object(spec, obj, friction=0.5)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    data.qpos[:7] = [0, 0, obj.resting_height(), 1, 0, 0, 0]
+    tilts = []
+    for _ in range(500):  # 1 s
+        mujoco.mj_step(model, data)
+        w, x, y, z = data.qpos[3:7]
+        tilts.append(math.degrees(math.acos(min(1.0, 1 - 2 * (x * x + y * y)))))
+    assert max(tilts) < 1.0, f"{name} tips over by {max(tilts):.1f} degrees"
+
+
 def test_cube_mass_properties_are_exact():
     obj = make_object("cube", mass=0.02)
     np.testing.assert_allclose(obj.inertia, 0.02 * 0.06**2 / 6 * np.eye(3), rtol=1e-6, atol=1e-14)

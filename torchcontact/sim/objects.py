@@ -363,6 +363,14 @@ def _ellipsoid(radii, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
     return _placed(_convex(sphere.vertices * np.asarray(radii, dtype=float)), centre, rotation)
 
 
+def _flat_bottomed(mesh: trimesh.Trimesh, z: float = 0.0) -> trimesh.Trimesh:
+    """``mesh`` cut flat at height ``z``: a base to stand on, as the toys the paper's meshes
+    were scanned from have (a round bottom rolls away from its resting pose)."""
+    vertices = mesh.vertices.copy()
+    vertices[:, 2] = np.maximum(vertices[:, 2], z)
+    return _convex(vertices)
+
+
 def _cylinder(radius, height, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
     """Cylinder along z (before ``rotation``)."""
     return _placed(trimesh.creation.cylinder(radius, height, sections=24), centre, rotation)
@@ -578,7 +586,7 @@ def _piggy_bank():
 def _rubber_duck():
     """Rubber duck along +x: body, head, beak, tail and two wing bumps."""
     return [
-        _ellipsoid([0.042, 0.032, 0.026], [0, 0, 0.026]),  # body
+        _flat_bottomed(_ellipsoid([0.042, 0.032, 0.03], [0, 0, 0.022])),  # body on a flat base
         _ellipsoid([0.021, 0.02, 0.021], [0.018, 0, 0.064]),  # head
         _ellipsoid([0.012, 0.01, 0.004], [0.041, 0, 0.06]),  # beak
         _convex([[-0.03, -0.01, 0.03], [-0.03, 0.01, 0.03], [-0.046, 0, 0.05], [-0.036, 0, 0.02]]),
@@ -590,7 +598,7 @@ def _rubber_duck():
 def _teapot():
     """Squat teapot along x: body, lid knob, spout towards +x and handle towards −x."""
     return [
-        _ellipsoid([0.032, 0.032, 0.022], [0, 0, 0.022]),  # body
+        _flat_bottomed(_ellipsoid([0.032, 0.032, 0.026], [0, 0, 0.018])),  # body on a flat base
         _cylinder(0.012, 0.004, [0, 0, 0.044]),  # lid
         _ellipsoid([0.004, 0.004, 0.003], [0, 0, 0.048]),  # knob
         _capsule([0.026, 0, 0.016], [0.048, 0, 0.036], 0.004),  # spout
