@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,15 +18,17 @@ from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
 from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
 from torchcontact.sim.fingertips import FingertipsEnv
-from torchcontact.sim.hands import HandEnv
-from torchcontact.sim.objects import object_names
+from torchcontact.sim.hands import HANDS, HandEnv
+from torchcontact.sim.objects import ObjectMesh, object_names
+from torchcontact.sim.plant import resolve_object
 
 SCENES_VERSION = 3
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
 resumed sweep reruns trials from older versions. 2: object poses at the box centre (bunny and
 cup lower, as the reference's meshes), the reference scenes' per-object friction, Allegro sizes
 and placements. 3: the rubber duck and the teapot stand on flat bases (their round bottoms
-rolled them off the upright resting pose the samplers assume); the TriFinger MPC's tilt cost."""
+rolled them off the upright resting pose the samplers assume); the TriFinger MPC's tilt
+cost on objects that tip before they slide."""
 
 
 @dataclass(frozen=True)
@@ -89,11 +92,20 @@ def _fingertips_env(obj: str) -> FingertipsEnv:
     )
 
 
+@functools.lru_cache(maxsize=4)
+def _hand_object(hand: str, obj: str) -> ObjectMesh:
+    """The object as :class:`HandEnv` builds it (size and mass overrides, 0.1 m user meshes),
+    for the MPC's object-dependent cost terms."""
+    override = HANDS[hand].override(obj)
+    mass = HANDS[hand].object_mass if override.mass is None else override.mass
+    return resolve_object(obj, 0.1, mass, override.size)
+
+
 def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample) -> Suite:
     """The suite of ``hand``: its one ``task`` on each of the 17 objects or a user mesh."""
 
     def make_mpc(obj: str, stiffness: float | None, **options) -> ContactImplicitMPC:
-        return hand_mpc(hand, stiffness=stiffness, **options)
+        return hand_mpc(hand, stiffness=stiffness, obj=_hand_object(hand, obj), **options)
 
     return Suite(
         name=hand,

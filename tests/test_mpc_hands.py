@@ -11,8 +11,10 @@ import trimesh
 
 from torchcontact.cli import main
 from torchcontact.mpc.evaluate import SUMMARY_KEYS
-from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
+from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc, tips_before_sliding
+from torchcontact.mpc.suites import SUITES
 from torchcontact.sim.hands import HANDS, HandEnv
+from torchcontact.sim.objects import make_object, object_names
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
 
@@ -34,6 +36,18 @@ def test_a_plan_stays_in_its_box_and_lowers_the_cost(hand):
         idle = mpc.objective(torch.zeros_like(plan.controls), *args)
         planned = mpc.objective(plan.controls, *args)
     assert float(planned) < float(idle)
+
+
+def test_only_objects_that_tip_before_they_slide_get_the_tilt_cost():
+    tipping = {name for name in object_names() if tips_before_sliding(make_object(name))}
+    assert tipping == {"binoculars", "camera", "rubber_duck", "water_bottle"}
+    assert hand_mpc("trifinger").cost.tilt == 0  # no object given: the paper's cost
+    assert hand_mpc("trifinger", obj=make_object("cube")).cost.tilt == 0
+    weight = MPC_SETTINGS["trifinger"].tilt
+    assert weight > 0 and hand_mpc("trifinger", obj=make_object("camera")).cost.tilt == weight
+    # the suites hand the object over; the Allegro has no tilt weight
+    assert SUITES["trifinger"].make_mpc("rubber_duck", None, compile=False).cost.tilt == weight
+    assert SUITES["allegro"].make_mpc("rubber_duck", None, compile=False).cost.tilt == 0
 
 
 def test_the_mpc_fingertips_are_the_plants_sites():

@@ -83,6 +83,17 @@ def test_every_object_stays_upright_where_it_is_set_down(name):
     assert max(tilts) < 1.0, f"{name} tips over by {max(tilts):.1f} degrees"
 
 
+def test_tipping_ratio_is_pose_height_over_the_base_edge_distance(tmp_path):
+    assert make_object("cube").tipping_ratio() == pytest.approx(1.0, rel=1e-6)
+    tall = make_object("cube", size=(0.02, 0.04, 0.1))  # centre 0.05 m up, nearest edge 0.01 m
+    assert tall.tipping_ratio() == pytest.approx(5.0, rel=1e-6)
+    cone = trimesh.creation.cone(radius=0.03, height=0.05)
+    cone.apply_transform(trimesh.transformations.rotation_matrix(math.pi, [1, 0, 0]))
+    cone.export(tmp_path / "point_down.stl")
+    standing_on_its_tip = load_object(tmp_path / "point_down.stl", 0.06, decomposition="hull")
+    assert standing_on_its_tip.tipping_ratio() == math.inf
+
+
 def test_cube_mass_properties_are_exact():
     obj = make_object("cube", mass=0.02)
     np.testing.assert_allclose(obj.inertia, 0.02 * 0.06**2 / 6 * np.eye(3), rtol=1e-6, atol=1e-14)

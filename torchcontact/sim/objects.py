@@ -23,7 +23,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 from trimesh.transformations import rotation_matrix
 
 DEFAULT_MASS = 0.01
@@ -97,6 +97,27 @@ class ObjectMesh:
         rotation = np.zeros(9)
         mujoco.mju_quat2Mat(rotation, _unit_quaternion("quat", quat))
         return float(-(self.vertices @ rotation.reshape(3, 3)[2]).min())
+
+    def tipping_ratio(self, base_tolerance: float = 1e-3) -> float:
+        """How easily the upright object tips over: h / r (≥ 0, inf on a point or edge base).
+
+        h is the height of the origin (the pose point, where the MPC's contact cost pulls the
+        fingertips) above the ground, r the distance from the centre of mass to the nearest
+        edge of the base, the hull of the vertices within ``base_tolerance`` [m] of the lowest.
+        A horizontal push at height h against ground friction μ tips the object before it
+        slides when μ·h/r > 1 (moments about that edge, the push just overcoming μ·m·g).
+        """
+        vertices = self.vertices
+        h = -float(vertices[:, 2].min())
+        base = vertices[vertices[:, 2] <= -h + base_tolerance, :2]
+        try:
+            hull = ConvexHull(base)
+        except QhullError:  # fewer than 3 points, or all on a line: no area to stand on
+            return math.inf
+        # hull.equations: rows (n, offset) with n·x + offset ≤ 0 inside, ‖n‖ = 1
+        inside = -(hull.equations[:, :2] @ self.centre_of_mass[:2] + hull.equations[:, 2])
+        r = float(inside.min())
+        return h / r if r > 0 else math.inf
 
 
 def object_names() -> tuple[str, ...]:
