@@ -10,13 +10,12 @@ import torch
 from torchcontact.integrate import JointLayout
 from torchcontact.mpc.controller import ContactImplicitMPC, mpc_model
 from torchcontact.mpc.costs import ManipulationCost
-from torchcontact.sim.hands import HANDS, Hand
+from torchcontact.sim.hands import HANDS, MODEL_FRICTION, Hand
 from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import ObjectMesh
 from torchcontact.systems import QuasiDynamic
 
 GRAVITY = 9.8  # [m/s²]
-MODEL_FRICTION = 0.5  # μ of the model's contact rows (HandEnv's contact_mu)
 
 
 def tips_before_sliding(obj: ObjectMesh, mu: float = MODEL_FRICTION) -> bool:

@@ -20,7 +20,6 @@ from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
 from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.hands import HANDS, HandEnv
 from torchcontact.sim.objects import ObjectMesh, object_names
-from torchcontact.sim.plant import resolve_object
 
 SCENES_VERSION = 3
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
@@ -94,11 +93,10 @@ def _fingertips_env(obj: str) -> FingertipsEnv:
 
 @functools.lru_cache(maxsize=4)
 def _hand_object(hand: str, obj: str) -> ObjectMesh:
-    """The object as :class:`HandEnv` builds it (size and mass overrides, 0.1 m user meshes),
-    for the MPC's object-dependent cost terms."""
-    override = HANDS[hand].override(obj)
-    mass = HANDS[hand].object_mass if override.mass is None else override.mass
-    return resolve_object(obj, 0.1, mass, override.size)
+    """The object as the suite's :class:`HandEnv` builds it, for the MPC's object-dependent
+    cost terms. A second build beside the plant's, cached per process: a user mesh is loaded
+    and decomposed once more, the built-in objects take well under a second."""
+    return HANDS[hand].object_mesh(obj)
 
 
 def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample) -> Suite:

@@ -94,6 +94,16 @@ class Hand:
         overrides = self.object_overrides.get(obj) if isinstance(obj, str) else None
         return overrides or ObjectOverride()
 
+    def object_mesh(
+        self, obj, object_size: float | tuple[float, float, float] = 0.1, mass: float | None = None
+    ) -> ObjectMesh:
+        """``obj`` (a built-in name, a mesh path or an :class:`ObjectMesh`) as this hand's scene
+        has it: its size override, and ``mass`` or else the override's or the hand's default."""
+        override = self.override(obj)
+        if mass is None:
+            mass = _chosen(override.mass, self.object_mass)
+        return resolve_object(obj, object_size, mass, override.size)
+
     @property
     def n_joints(self) -> int:
         return len(self.initial_joints)
@@ -102,6 +112,11 @@ class Hand:
     def mjcf(self) -> Path:
         """Path of the robot's model file."""
         return asset_path(self.asset)
+
+
+def _chosen(value, default):
+    """``value`` where an override sets it (0 included), else ``default``."""
+    return default if value is None else value
 
 
 def _scaled(obj: str, factor: float) -> tuple[float, float, float]:
@@ -171,6 +186,9 @@ ALLEGRO = Hand(
 HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
 
 
+MODEL_FRICTION = 0.5
+"""μ the paper's hand models use in every contact row (HandEnv's default ``contact_mu``)."""
+
 CONTACTS_PER_TIP = 2
 """Slots kept per fingertip beyond the resting contacts (a tip on a seam touches two parts)."""
 
@@ -216,7 +234,7 @@ class HandEnv(Plant):
         mass: float | None = None,
         condim: int = 6,
         contact_slots: int | None = None,
-        contact_mu: float | None = 0.5,
+        contact_mu: float | None = MODEL_FRICTION,
         overflow: str = "error",
         timestep: float = 0.002,
     ):
@@ -233,15 +251,9 @@ class HandEnv(Plant):
             raise ValueError(f"timestep must be a positive finite number, got {timestep!r}")
         self.hand = hand
         override = hand.override(obj)
-
-        def chosen(value, default):  # an override of 0 still counts
-            return default if value is None else value
-
-        if mass is None:
-            mass = chosen(override.mass, hand.object_mass)
-        self.object = resolve_object(obj, object_size, mass, override.size)
-        self.object_friction = chosen(override.object_friction, hand.object_friction)
-        self.ground_friction = chosen(override.ground_friction, hand.ground_friction)
+        self.object = hand.object_mesh(obj, object_size, mass)
+        self.object_friction = _chosen(override.object_friction, hand.object_friction)
+        self.ground_friction = _chosen(override.ground_friction, hand.ground_friction)
         spec = self._scene_spec(condim)
         spec.option.timestep = timestep
         self.model = spec.compile()
