@@ -275,7 +275,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--stiffness",
         type=float,
         default=None,
-        help="K (complementarity_free); default the paper's",
+        help="K (complementarity_free); default the paper's, except the fingertips' 4.64 "
+        "(learn-k's best constant K on the cube)",
     )
     parser.add_argument(
         "--relaxation",
@@ -339,7 +340,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     elif args.learned is not None:
         args.learned = str(args.learned.resolve())
     else:
-        args.stiffness = suite.stiffness if args.stiffness is None else args.stiffness
+        args.stiffness = suite.default_stiffness if args.stiffness is None else args.stiffness
     variant = variant_name(args.env, args.model, args.learned)
     args.out = Path("results") / variant if args.out is None else args.out
     return args

@@ -15,19 +15,20 @@ import numpy as np
 
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.fingertips import STIFFNESS, fingertips_mpc
+from torchcontact.mpc.fingertips import PAPER_STIFFNESS, STIFFNESS, fingertips_mpc
 from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
 from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.hands import HANDS, HandEnv
 from torchcontact.sim.objects import ObjectMesh, object_names
 
-SCENES_VERSION = 3
+SCENES_VERSION = 4
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
 resumed sweep reruns trials from older versions. 2: object poses at the box centre (bunny and
 cup lower, as the reference's meshes), the reference scenes' per-object friction, Allegro sizes
 and placements. 3: the rubber duck and the teapot stand on flat bases (their round bottoms
 rolled them off the upright resting pose the samplers assume); the TriFinger MPC's tilt
-cost on objects that tip before they slide."""
+cost on objects that tip before they slide. 4: the Allegro MPC's final position weight 300
+(the paper's 100 let it turn objects off the palm)."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,8 @@ class Suite:
         name: the environment (``torchcontact run NAME``).
         pairs: the paper's (task, object) pairs.
         criterion: success criterion of its tasks.
-        stiffness: the paper's K for its MPC.
+        stiffness: the paper's K for its MPC (``learn-k`` collects its data with it).
+        default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         user_meshes: whether ``--object`` may be a mesh file (run on every task).
         make_env: ``obj ↦`` plant, with contacts beyond the slots truncated to the deepest.
         make_mpc: ``(obj, stiffness, **options) ↦`` :class:`ContactImplicitMPC`; ``options``
@@ -51,6 +53,7 @@ class Suite:
     pairs: tuple[tuple[str, str], ...]
     criterion: tasks.SuccessCriterion
     stiffness: float
+    default_stiffness: float
     user_meshes: bool
     make_env: Callable
     make_mpc: Callable[..., ContactImplicitMPC]
@@ -110,6 +113,7 @@ def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample)
         pairs=tuple((task, obj) for obj in object_names()),
         criterion=criterion,
         stiffness=MPC_SETTINGS[hand].stiffness,
+        default_stiffness=MPC_SETTINGS[hand].stiffness,
         user_meshes=True,
         make_env=lambda obj: HandEnv(hand, obj, overflow="deepest"),
         make_mpc=make_mpc,
@@ -122,7 +126,8 @@ SUITES: dict[str, Suite] = {
         name="fingertips",
         pairs=tasks.PAPER_PAIRS,
         criterion=tasks.FINGERTIPS_SUCCESS,
-        stiffness=STIFFNESS,
+        stiffness=PAPER_STIFFNESS,
+        default_stiffness=STIFFNESS,
         user_meshes=False,
         make_env=_fingertips_env,
         make_mpc=fingertips_mpc,
