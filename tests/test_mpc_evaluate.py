@@ -61,6 +61,15 @@ def test_each_model_has_its_default_output_folder():
     assert parse_args(["fingertips", "--model", "qp"]).out == Path("results/fingertips_qp")
 
 
+def test_the_cli_plans_with_each_suites_default_k_and_learn_k_keeps_the_papers():
+    from torchcontact.learn.scenes import make_scene
+
+    assert parse_args(["fingertips"]).stiffness == 4.64  # learn-k's best constant on the cube
+    assert parse_args(["trifinger"]).stiffness == parse_args(["allegro"]).stiffness == 0.5
+    assert parse_args(["fingertips", "--stiffness", "1"]).stiffness == 1.0
+    assert make_scene("fingertips", "cube").paper_stiffness == 1.0
+
+
 def test_records_written_before_the_model_and_solver_options_still_resume(tmp_path, monkeypatch):
     out = tmp_path / "out"
     main([*ARGS, *FAST, "--out", str(out)])
