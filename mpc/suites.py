@@ -28,7 +28,8 @@ cup lower, as the reference's meshes), the reference scenes' per-object friction
 and placements. 3: the rubber duck and the teapot stand on flat bases (their round bottoms
 rolled them off the upright resting pose the samplers assume); the TriFinger MPC's tilt
 cost on objects that tip before they slide. 4: the Allegro MPC's final position weight 300
-(the paper's 100 let it turn objects off the palm)."""
+(the paper's 100 let it turn objects off the palm); the TriFinger's contacts are detected
+5 mm before touch (``Hand.contact_margin``)."""
 
 
 @dataclass(frozen=True)

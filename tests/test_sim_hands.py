@@ -176,3 +176,21 @@ def test_render_shows_the_scene():
     finally:
         env.close()
     assert image.shape == (48, 64, 3) and image.std() > 1.0
+
+
+def test_the_trifinger_sees_a_tip_within_its_contact_margin_as_an_open_gap():
+    gap = 0.003  # [m], inside the TriFinger's 5 mm margin
+    seen, blind = HandEnv("trifinger", "cube"), HandEnv("trifinger", "cube", contact_margin=0.0)
+    assert TRIFINGER.contact_margin == 0.005 and ALLEGRO.contact_margin == 0.0
+    model, tip = seen.model, seen.fingertips()[0]
+    (tip_geom,) = np.flatnonzero(model.geom_bodyid == model.site_bodyid[seen.tip_sites[0]])
+    # the cube's −x face `gap` from the tip sphere, its bottom 8 mm above the ground
+    offset = model.geom_size[tip_geom][0] + 0.03 + gap
+    pose = [tip[0] + offset, tip[1], 0.038, 1.0, 0.0, 0.0, 0.0]
+    for env in (seen, blind):
+        env.reset(pose)
+    contacts = seen.contacts()
+    assert seen.detector.found == 1 and blind.contacts().active.sum() == 0
+    assert float(contacts.phi[contacts.active][0]) == pytest.approx(gap, abs=1e-5)
+    with pytest.raises(ValueError, match="contact_margin"):
+        HandEnv("trifinger", "cube", contact_margin=-0.001)

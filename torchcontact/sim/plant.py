@@ -68,8 +68,9 @@ class Plant:
     def contacts(self, dtype: torch.dtype | None = None) -> Contacts:
         """Contacts of the object with the robot and its support at the current state.
 
-        MuJoCo's contacts at touch (no margin) in the detector's slots, with its μ; φ is
-        MuJoCo's distance (≤ 0 when touching). More contacts than slots follow the
+        MuJoCo's contacts at touch, or within the detector's margin (a hand's
+        ``contact_margin``), in the detector's slots, with its μ; φ is MuJoCo's distance (≤ 0
+        when touching, up to the margin when not). More contacts than slots follow the
         detector's ``overflow`` policy.
         """
         contacts = self.detector(self.data.qpos)
