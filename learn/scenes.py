@@ -207,5 +207,5 @@ def make_scene(
     elif task not in tasks:
         raise ValueError(f"task must be one of {tasks} for {name} with {obj}, got {task!r}")
     env = suite.make_env(obj)
-    mpc = suite.make_mpc(obj, suite.stiffness, **mpc_options)
+    mpc = suite.make_mpc(obj, suite.stiffness, plant=env, **mpc_options)
     return Scene(name=name, object=obj, task=task, env=env, mpc=mpc)

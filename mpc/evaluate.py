@@ -370,12 +370,14 @@ def _run_job(job: Job) -> dict:
         # A new object brings new tensor shapes: drop the previous compiled graphs, or dynamo
         # reaches its recompile limit after a few objects and silently runs eager from then on.
         torch._dynamo.reset()
+        env = suite.make_env(c.object)
         _CACHE.update(
             key=key,
-            env=suite.make_env(c.object),
+            env=env,
             mpc=suite.make_mpc(
                 c.object,
                 suite.stiffness if c.learned is not None else c.stiffness,  # then replaced
+                plant=env,
                 model=c.model,
                 relaxation=c.relaxation,
                 max_iter=c.max_iter,

@@ -44,9 +44,11 @@ class Suite:
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         user_meshes: whether ``--object`` may be a mesh file (run on every task).
         make_env: ``obj ↦`` plant, with contacts beyond the slots truncated to the deepest.
-        make_mpc: ``(obj, stiffness, **options) ↦`` :class:`ContactImplicitMPC`; ``options``
-            are ``model`` and ``relaxation`` (see :func:`torchcontact.mpc.controller.mpc_model`)
-            and the controller's.
+        make_mpc: ``(obj, stiffness, plant=None, **options) ↦`` :class:`ContactImplicitMPC`;
+            ``plant``, the :attr:`make_env` plant it will control, lends the hands' MPC its
+            object (else built once more, cached per process); ``options`` are ``model`` and
+            ``relaxation`` (see :func:`torchcontact.mpc.controller.mpc_model`) and the
+            controller's.
         sample: ``(env, task, obj, seed) ↦`` initial and target poses ``(7,), (7,)``.
     """
 
@@ -97,17 +99,24 @@ def _fingertips_env(obj: str) -> FingertipsEnv:
 
 @functools.lru_cache(maxsize=4)
 def _hand_object(hand: str, obj: str) -> ObjectMesh:
-    """The object as the suite's :class:`HandEnv` builds it, for the MPC's object-dependent
-    cost terms. A second build beside the plant's, cached per process: a user mesh is loaded
-    and decomposed once more, the built-in objects take well under a second."""
+    """The object as the suite's :class:`HandEnv` builds it, for an MPC made without its
+    plant (cached per process: a user mesh is loaded and decomposed again)."""
     return HANDS[hand].object_mesh(obj)
+
+
+def _fingertips_mpc(obj: str, stiffness, plant=None, **options) -> ContactImplicitMPC:
+    """:func:`fingertips_mpc`, whose settings come from the object's name alone (no plant)."""
+    return fingertips_mpc(obj, stiffness, **options)
 
 
 def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample) -> Suite:
     """The suite of ``hand``: its one ``task`` on each of the 17 objects or a user mesh."""
 
-    def make_mpc(obj: str, stiffness: float | None, **options) -> ContactImplicitMPC:
-        return hand_mpc(hand, stiffness=stiffness, obj=_hand_object(hand, obj), **options)
+    def make_mpc(
+        obj: str, stiffness: float | None, plant: HandEnv | None = None, **options
+    ) -> ContactImplicitMPC:
+        mesh = _hand_object(hand, obj) if plant is None else plant.object
+        return hand_mpc(hand, stiffness=stiffness, obj=mesh, **options)
 
     return Suite(
         name=hand,
@@ -131,7 +140,7 @@ SUITES: dict[str, Suite] = {
         default_stiffness=STIFFNESS,
         user_meshes=False,
         make_env=_fingertips_env,
-        make_mpc=fingertips_mpc,
+        make_mpc=_fingertips_mpc,
         sample=lambda env, task, obj, seed: tasks.sample(task, obj, seed),
     ),
     "trifinger": _hand_suite(

@@ -13,7 +13,7 @@ from torchcontact.cli import main
 from torchcontact.mpc.evaluate import SUMMARY_KEYS
 from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc, tips_before_sliding
 from torchcontact.mpc.suites import SUITES
-from torchcontact.sim.hands import HANDS, HandEnv
+from torchcontact.sim.hands import HANDS, Hand, HandEnv
 from torchcontact.sim.objects import make_object, object_names
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
@@ -48,6 +48,23 @@ def test_only_objects_that_tip_before_they_slide_get_the_tilt_cost():
     # the suites hand the object over; the Allegro has no tilt weight
     assert SUITES["trifinger"].make_mpc("rubber_duck", None, compile=False).cost.tilt == weight
     assert SUITES["allegro"].make_mpc("rubber_duck", None, compile=False).cost.tilt == 0
+
+
+def test_a_suite_mpc_takes_its_object_from_the_plant_instead_of_building_it_again(
+    tmp_path, monkeypatch
+):
+    path = tmp_path / "tall.stl"
+    trimesh.creation.cylinder(radius=0.01, height=0.06).export(path)  # tips before it slides
+    suite = SUITES["trifinger"]
+    plant = suite.make_env(str(path))
+    builds = []
+    build = Hand.object_mesh
+    monkeypatch.setattr(Hand, "object_mesh", lambda *a, **k: builds.append(a) or build(*a, **k))
+    mpc = suite.make_mpc(str(path), None, plant=plant, compile=False)
+    assert builds == []  # a user mesh is not loaded (and decomposed) a second time
+    assert tips_before_sliding(plant.object) and mpc.cost.tilt == MPC_SETTINGS["trifinger"].tilt
+    suite.make_mpc(str(path), None, compile=False)  # without its plant: built anew
+    assert len(builds) == 1
 
 
 def test_the_mpc_fingertips_are_the_plants_sites():
