@@ -43,7 +43,9 @@ class Suite:
         stiffness: the paper's K for its MPC (``learn-k`` collects its data with it).
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         user_meshes: whether ``--object`` may be a mesh file (run on every task).
-        make_env: ``obj ↦`` plant, with contacts beyond the slots truncated to the deepest.
+        make_env: ``(obj, collision="auto") ↦`` plant, with contacts beyond the slots
+            truncated to the deepest; ``collision`` how the object collides (see
+            :func:`torchcontact.sim.objects.make_object`).
         make_mpc: ``(obj, stiffness, plant=None, **options) ↦`` :class:`ContactImplicitMPC`;
             ``plant``, the :attr:`make_env` plant it will control, lends the hands' MPC its
             object (else built once more, cached per process); ``options`` are ``model`` and
@@ -87,13 +89,14 @@ class Suite:
         return pairs
 
 
-def _fingertips_env(obj: str) -> FingertipsEnv:
+def _fingertips_env(obj: str, collision: str = "auto") -> FingertipsEnv:
     settings = tasks.OBJECT_SETTINGS[obj]
     return FingertipsEnv(
         obj,
         object_friction=settings.object_friction,
         contact_slots=settings.contact_slots,
         overflow="deepest",
+        collision=collision,
     )
 
 
@@ -125,7 +128,9 @@ def _hand_suite(hand: str, task: str, criterion: tasks.SuccessCriterion, sample)
         stiffness=MPC_SETTINGS[hand].stiffness,
         default_stiffness=MPC_SETTINGS[hand].stiffness,
         user_meshes=True,
-        make_env=lambda obj: HandEnv(hand, obj, overflow="deepest"),
+        make_env=lambda obj, collision="auto": HandEnv(
+            hand, obj, overflow="deepest", collision=collision
+        ),
         make_mpc=make_mpc,
         sample=sample,
     )

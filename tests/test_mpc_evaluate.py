@@ -103,6 +103,23 @@ def test_records_of_older_scenes_are_run_again(tmp_path, monkeypatch):
     assert reruns == [1] and json.loads(path.read_text())["scenes"] == SCENES_VERSION
 
 
+def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path, monkeypatch):
+    """Objects collided part by part before ``--collision``: such records resume only there."""
+    out = tmp_path / "out"
+    main([*ARGS, *FAST, "--collision", "parts", "--out", str(out)])
+    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
+    record = json.loads(path.read_text())
+    assert record["collision"] == "parts"
+    path.write_text(json.dumps({k: v for k, v in record.items() if k != "collision"}))
+    reruns = []
+    real = evaluate.run_trial
+    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: reruns.append(1) or real(*a, **k))
+    assert main([*ARGS, *FAST, "--collision", "parts", "--out", str(out)]) == 0
+    assert reruns == []
+    assert main([*ARGS, *FAST, "--out", str(out)]) == 0  # the default, "auto": run again
+    assert reruns == [1] and json.loads(path.read_text())["collision"] == "auto"
+
+
 @pytest.mark.parametrize(
     "bad, message",
     [
@@ -117,6 +134,7 @@ def test_records_of_older_scenes_are_run_again(tmp_path, monkeypatch):
         (["--preset", "fastest"], "--preset"),
         (["--horizon", "0"], "--horizon"),
         (["--memory", "0"], "--memory"),
+        (["--collision", "convex"], "--collision"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, capsys, bad, message):

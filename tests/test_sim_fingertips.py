@@ -153,3 +153,8 @@ def test_bad_constructor_arguments_name_themselves():
         FingertipsEnv("cube", overflow="drop")
     with pytest.raises(ValueError, match="frame_skip"):
         FingertipsEnv("cube", frame_skip=0)
+
+
+def test_the_bunny_collides_as_its_hull_unless_told_otherwise():
+    assert FingertipsEnv("bunny", contact_slots=12).object.collide_hull
+    assert not FingertipsEnv("bunny", contact_slots=12, collision="parts").object.collide_hull

@@ -194,3 +194,13 @@ def test_the_trifinger_sees_a_tip_within_its_contact_margin_as_an_open_gap():
     assert float(contacts.phi[contacts.active][0]) == pytest.approx(gap, abs=1e-5)
     with pytest.raises(ValueError, match="contact_margin"):
         HandEnv("trifinger", "cube", contact_margin=-0.001)
+
+
+def test_the_plant_collides_its_object_as_asked():
+    """By default the airplane collides as its hull, as the paper's one mesh geom did."""
+    for collision, hull in (("auto", True), ("hull", True), ("parts", False)):
+        env = HandEnv("allegro", "airplane", collision=collision)
+        assert env.object.collide_hull is hull
+    assert not HandEnv("trifinger", "mug").object.collide_hull  # its cavity stays open
+    with pytest.raises(ValueError, match="collision"):
+        HandEnv("trifinger", "cube", collision="convex")

@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import ConvexHull
 
 from torchcontact.sim.objects import (
     OBJECT_ORIGIN_HEIGHTS,
@@ -145,6 +146,47 @@ def test_hollow_objects_keep_their_holes_open():
         inside = [part.convex_hull.contains([point])[0] for part in obj.parts]
         assert not any(inside)
         assert len(obj.parts) > 1
+
+
+def _collidable_geoms(model: mujoco.MjModel) -> np.ndarray:
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    mine = model.geom_bodyid == body
+    return np.flatnonzero(mine & ((model.geom_contype != 0) | (model.geom_conaffinity != 0)))
+
+
+def test_objects_without_a_reachable_hole_collide_as_their_hull_as_in_the_paper():
+    """The airplane collides as one hidden hull geom and shows its parts; the torus keeps
+    colliding part by part, its hole open (the default ``collision="auto"``)."""
+    airplane = make_object("airplane")
+    model = _compiled(airplane)
+    collidable = _collidable_geoms(model)
+    assert airplane.collide_hull and len(collidable) == 1
+    assert model.geom_group[collidable[0]] == 3  # hidden in renderings
+    body = model.geom_bodyid[collidable[0]]
+    drawn = np.flatnonzero((model.geom_bodyid == body) & (model.geom_group < 3))
+    assert len(drawn) == len(airplane.parts) > 1
+    hull = trimesh.convex.convex_hull(airplane.vertices)
+    mesh = model.geom_dataid[collidable[0]]
+    assert model.mesh_vertnum[mesh] == len(hull.vertices)
+    torus = make_object("torus")
+    assert not torus.collide_hull
+    assert len(_collidable_geoms(_compiled(torus))) == len(torus.parts) > 1
+
+
+def test_collision_can_be_chosen_and_leaves_shape_and_mass_alone():
+    parts = make_object("airplane", collision="parts")
+    hull = make_object("airplane", collision="hull")
+    assert not parts.collide_hull and hull.collide_hull
+    assert len(_collidable_geoms(_compiled(parts))) == len(parts.parts)
+    np.testing.assert_allclose(parts.inertia, hull.inertia)
+    np.testing.assert_allclose(parts.centre_of_mass, hull.centre_of_mass)
+    closed = make_object("torus", collision="hull")
+    (solid,) = closed.collision_parts
+    planes = ConvexHull(solid.vertices).equations  # rows (n, d): n·x + d ≤ 0 inside
+    assert (planes[:, 3] < 0).all()  # the centre of the hole is inside: the hull fills it
+    assert not make_object("cube", collision="hull").collide_hull  # one part: its own hull
+    with pytest.raises(ValueError, match="collision must be one of"):
+        make_object("cube", collision="convex")
 
 
 def test_user_mesh_loads_scaled_to_largest_extent_and_to_a_box(tmp_path):

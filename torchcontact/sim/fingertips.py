@@ -56,6 +56,8 @@ class FingertipsEnv(Plant):
         frame_skip: MuJoCo substeps per :meth:`step`.
         timestep: MuJoCo substep [s].
         kp, kd: PD gains of the tip servo [N/m], [N·s/m].
+        collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
+            :func:`~torchcontact.sim.objects.make_object`.
     """
 
     def __init__(
@@ -75,6 +77,7 @@ class FingertipsEnv(Plant):
         timestep: float = 0.002,
         kp: float = 100.0,
         kd: float = 2.0,
+        collision: str = "auto",
     ):
         if overflow not in OVERFLOW_POLICIES:
             raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
@@ -87,7 +90,7 @@ class FingertipsEnv(Plant):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
         super().__init__()
-        self.object = resolve_object(obj, object_size, mass)
+        self.object = resolve_object(obj, object_size, mass, collision=collision)
         self.frame_skip, self.kp, self.kd = frame_skip, float(kp), float(kd)
         spec = _scene_spec(self.object, object_friction, tip_friction, ground_friction, condim)
         spec.option.timestep = timestep

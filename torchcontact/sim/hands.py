@@ -99,14 +99,19 @@ class Hand:
         return overrides or ObjectOverride()
 
     def object_mesh(
-        self, obj, object_size: float | tuple[float, float, float] = 0.1, mass: float | None = None
+        self,
+        obj,
+        object_size: float | tuple[float, float, float] = 0.1,
+        mass: float | None = None,
+        collision: str = "auto",
     ) -> ObjectMesh:
         """``obj`` (a built-in name, a mesh path or an :class:`ObjectMesh`) as this hand's scene
-        has it: its size override, and ``mass`` or else the override's or the hand's default."""
+        has it: its size override, and ``mass`` or else the override's or the hand's default;
+        ``collision`` as :func:`~torchcontact.sim.plant.resolve_object`."""
         override = self.override(obj)
         if mass is None:
             mass = _chosen(override.mass, self.object_mass)
-        return resolve_object(obj, object_size, mass, override.size)
+        return resolve_object(obj, object_size, mass, override.size, collision)
 
     @property
     def n_joints(self) -> int:
@@ -234,6 +239,9 @@ class HandEnv(Plant):
             (:attr:`Hand.contact_margin`). The simulation itself keeps MuJoCo's 0.
         overflow: ``"error"`` or ``"deepest"`` when more object contacts exist than slots.
         timestep: MuJoCo substep [s].
+        collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
+            :func:`~torchcontact.sim.objects.make_object` and
+            :func:`~torchcontact.sim.plant.resolve_object`.
     """
 
     def __init__(
@@ -243,6 +251,7 @@ class HandEnv(Plant):
         *,
         object_size: float | tuple[float, float, float] = 0.1,
         mass: float | None = None,
+        collision: str = "auto",
         condim: int = 6,
         contact_slots: int | None = None,
         contact_mu: float | None = MODEL_FRICTION,
@@ -266,7 +275,7 @@ class HandEnv(Plant):
             raise ValueError(f"contact_margin must be a non-negative finite number, got {margin!r}")
         self.hand = hand
         override = hand.override(obj)
-        self.object = hand.object_mesh(obj, object_size, mass)
+        self.object = hand.object_mesh(obj, object_size, mass, collision)
         self.object_friction = _chosen(override.object_friction, hand.object_friction)
         self.ground_friction = _chosen(override.ground_friction, hand.ground_friction)
         spec = self._scene_spec(condim)

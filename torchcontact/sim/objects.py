@@ -4,16 +4,25 @@ MuJoCo collides every mesh geom through its convex hull, so an object is a union
 parts (its convex decomposition). The procedural shapes below are built from convex primitives
 (boxes, ellipsoids, cylinders, hulls, sectors of revolved profiles), so they come decomposed:
 a cup's wall is a ring of wall segments, a torus a ring of tube segments, and the hole stays
-open to the fingertips. Every object is scaled per axis so the bounding box of the union is
-the listed size, with the body origin at the centre of its bounding box: the origin of the
-paper's object meshes (the reference code spawns each at about half its height; its bunny and
-cup lower, see :data:`OBJECT_ORIGIN_HEIGHTS`), so the pose the costs and success criteria see
-is the same point. Mass properties are those of the union with uniform density (overlapping
+open to the fingertips.
+
+What the robot touches is a choice (``make_object(..., collision=...)``). The paper's code
+gives MuJoCo each object as one mesh geom, so its objects collide as their convex hulls. By
+default (``"auto"``) ours do the same, except the :data:`HOLLOW_OBJECTS`, whose hole or cavity
+a fingertip can reach: those collide part by part. A hull-colliding object still shows its
+parts (visual-only geoms) and keeps their mass properties.
+
+Every object is scaled per axis so the bounding box of the union is the listed size, with
+the body origin at the centre of its bounding box: the origin of the paper's object meshes
+(the reference code spawns each at about half its height; its bunny and cup lower, see
+:data:`OBJECT_ORIGIN_HEIGHTS`), so the pose the costs and success criteria see is the same
+point. Mass properties are those of the union with uniform density (overlapping
 parts count once); the centre of mass is given to MuJoCo.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable, Sequence
@@ -55,7 +64,19 @@ OBJECT_ORIGIN_HEIGHTS: dict[str, float] = {"bunny": 0.030, "cup": 0.020}
 has its origin lower than its box centre (the reference spawns its bunny at 0.03 m and its cup
 at 0.025 m with the mesh 0.02 m lower); every other object has its origin at the box centre."""
 
+HOLLOW_OBJECTS = frozenset({"bowl", "cup", "mug", "torus"})
+"""Built-in objects with a hole or cavity a fingertip can reach (the cup's, bowl's and mug's
+opening, the torus' hole): they collide part by part under ``collision="auto"``. The teapot's
+handle leaves a gap narrower than a fingertip, so it is not one of them."""
+
+COLLISIONS = ("auto", "hull", "parts")
+"""How a built-in object collides: ``"hull"`` as one convex hull of all its parts (the paper's
+objects, one mesh geom each), ``"parts"`` part by part, ``"auto"`` parts for the
+:data:`HOLLOW_OBJECTS` and the hull for the others."""
+
 DECOMPOSITIONS = ("auto", "coacd", "hull")
+COLLISION_GROUP = 3
+"""Geom group of a hull-colliding object's hull: MuJoCo draws groups 0–2 by default."""
 _GRID = 64  # cells per axis of the mass-property grid: ≈ 1 % error at most on the shapes below
 
 
@@ -69,6 +90,9 @@ class ObjectMesh:
         mass: total mass [kg].
         inertia: ``(3, 3)`` inertia tensor about the centre of mass, body axes [kg·m²].
         centre_of_mass: ``(3,)`` in the body frame [m].
+        collide_hull: whether MuJoCo collides the object as the convex hull of all its parts
+            (one geom, the paper's way) instead of part by part; the parts still give its
+            looks and mass properties.
     """
 
     name: str
@@ -76,6 +100,12 @@ class ObjectMesh:
     mass: float
     inertia: np.ndarray
     centre_of_mass: np.ndarray
+    collide_hull: bool = False
+
+    @functools.cached_property
+    def collision_parts(self) -> tuple[trimesh.Trimesh, ...]:
+        """The convex meshes [m] MuJoCo collides: the hull of all parts, or the parts."""
+        return (_convex(self.vertices),) if self.collide_hull else self.parts
 
     @property
     def vertices(self) -> np.ndarray:
@@ -126,18 +156,27 @@ def object_names() -> tuple[str, ...]:
 
 
 def make_object(
-    name: str, mass: float = DEFAULT_MASS, size: Sequence[float] | None = None
+    name: str,
+    mass: float = DEFAULT_MASS,
+    size: Sequence[float] | None = None,
+    collision: str = "auto",
 ) -> ObjectMesh:
     """Built-in object ``name`` scaled to ``size`` (x, y, z) [m], default its listed size; the
-    origin at the box centre or at :data:`OBJECT_ORIGIN_HEIGHTS` (scaled with the height)."""
+    origin at the box centre or at :data:`OBJECT_ORIGIN_HEIGHTS` (scaled with the height).
+    ``collision``: one of :data:`COLLISIONS`, how MuJoCo collides it."""
     if name not in _SHAPES:
         raise ValueError(f"name must be one of {object_names()}, got {name!r}")
+    if collision not in COLLISIONS:
+        raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
     listed = OBJECT_SIZES[name]
     target = _positive_vector("size", listed if size is None else size, 3)
     origin = OBJECT_ORIGIN_HEIGHTS.get(name, listed[2] / 2) * target[2] / listed[2]
-    return _assemble(
+    obj = _assemble(
         name, _SHAPES[name](), target, _positive_scalar("mass", mass), origin_height=origin
     )
+    hull = collision == "hull" or (collision == "auto" and name not in HOLLOW_OBJECTS)
+    # a single part is its own hull: nothing to change
+    return dataclasses.replace(obj, collide_hull=True) if hull and len(obj.parts) > 1 else obj
 
 
 def load_object(
@@ -185,11 +224,14 @@ def add_object(
     condim: int = 6,
     rgba: Sequence[float] = (0.85, 0.55, 0.25, 1.0),
 ) -> mujoco.MjsBody:
-    """Add ``obj`` to ``spec`` as a free body with one collision mesh geom per convex part.
+    """Add ``obj`` to ``spec`` as a free body with one collision mesh geom per convex part
+    of ``obj.collision_parts``.
 
     The body carries the union's mass and inertia explicitly (so overlapping parts are not
     counted twice); ``friction`` is the sliding coefficient, torsional and rolling keep
-    MuJoCo's defaults. Returns the new body; its free joint is named ``{body_name}_free``.
+    MuJoCo's defaults. A hull-colliding object gets its hull in geom group
+    :data:`COLLISION_GROUP` (hidden in renderings) and its parts as visual-only geoms.
+    Returns the new body; its free joint is named ``{body_name}_free``.
     """
     if not (math.isfinite(friction) and friction >= 0):
         raise ValueError(f"friction must be a non-negative finite number, got {friction!r}")
@@ -202,14 +244,18 @@ def add_object(
     body.ipos = obj.centre_of_mass.tolist()
     i = obj.inertia
     body.fullinertia = [i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]
-    for mesh_name in _add_meshes(spec, obj):
+    collision_meshes = _add_meshes(spec, f"{obj.name}_collision", obj.collision_parts)
+    for mesh_name in collision_meshes:
         body.add_geom(
             type=mujoco.mjtGeom.mjGEOM_MESH,
             meshname=mesh_name,
             friction=[friction, 0.005, 0.0001],
             condim=condim,
             rgba=list(rgba),
+            group=COLLISION_GROUP if obj.collide_hull else 0,
         )
+    if obj.collide_hull:
+        _add_visual_geoms(body, _add_meshes(spec, obj.name, obj.parts), rgba)
     return body
 
 
@@ -224,7 +270,13 @@ def add_goal_marker(
     Move it with ``data.mocap_pos`` / ``data.mocap_quat``. Returns the new body.
     """
     body = spec.worldbody.add_body(name=body_name, mocap=True)
-    for mesh_name in _add_meshes(spec, obj):
+    _add_visual_geoms(body, _add_meshes(spec, obj.name, obj.parts), rgba)
+    return body
+
+
+def _add_visual_geoms(body: mujoco.MjsBody, mesh_names: list[str], rgba: Sequence[float]):
+    """One mesh geom per name on ``body`` that is drawn but never collides nor weighs."""
+    for mesh_name in mesh_names:
         body.add_geom(
             type=mujoco.mjtGeom.mjGEOM_MESH,
             meshname=mesh_name,
@@ -233,7 +285,6 @@ def add_goal_marker(
             density=0.0,
             rgba=list(rgba),
         )
-    return body
 
 
 # --- assembly ------------------------------------------------------------------------------
@@ -296,10 +347,10 @@ def _union_mass_properties(
     return centre, inertia
 
 
-def _add_meshes(spec: mujoco.MjSpec, obj: ObjectMesh) -> list[str]:
-    """Register ``obj``'s parts as mesh assets (once per spec); return their names."""
-    names = [f"{obj.name}_part{i}" for i in range(len(obj.parts))]
-    for mesh_name, part in zip(names, obj.parts, strict=True):
+def _add_meshes(spec: mujoco.MjSpec, prefix: str, parts: Sequence[trimesh.Trimesh]) -> list[str]:
+    """Register ``parts`` as mesh assets ``{prefix}_part{i}`` (once per spec); their names."""
+    names = [f"{prefix}_part{i}" for i in range(len(parts))]
+    for mesh_name, part in zip(names, parts, strict=True):
         if spec.mesh(mesh_name) is None:
             spec.add_mesh(
                 name=mesh_name,

@@ -14,7 +14,13 @@ import torch
 
 from torchcontact.contacts import Contacts
 from torchcontact.sim.detect import ContactDetector
-from torchcontact.sim.objects import OBJECT_SIZES, ObjectMesh, load_object, make_object
+from torchcontact.sim.objects import (
+    COLLISIONS,
+    OBJECT_SIZES,
+    ObjectMesh,
+    load_object,
+    make_object,
+)
 
 
 class Plant:
@@ -106,16 +112,28 @@ class Plant:
 
 
 def resolve_object(
-    obj, object_size, mass: float, size: tuple[float, float, float] | None = None
+    obj,
+    object_size,
+    mass: float,
+    size: tuple[float, float, float] | None = None,
+    collision: str = "auto",
 ) -> ObjectMesh:
     """An :class:`ObjectMesh` from a built-in name (at ``size``, default its listed size), a
-    mesh path (scaled to ``object_size``) or an :class:`ObjectMesh` (as is)."""
+    mesh path (scaled to ``object_size``) or an :class:`ObjectMesh` (as is).
+
+    ``collision`` (one of :data:`~torchcontact.sim.objects.COLLISIONS`): how a built-in
+    object collides, see :func:`~torchcontact.sim.objects.make_object`; for a mesh path
+    ``"hull"`` keeps its convex hull and the others its default decomposition.
+    """
+    if collision not in COLLISIONS:
+        raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
     if isinstance(obj, ObjectMesh):
         return obj
     if isinstance(obj, str) and obj in OBJECT_SIZES:
-        return make_object(obj, mass=mass, size=size)
+        return make_object(obj, mass=mass, size=size, collision=collision)
     if isinstance(obj, (str, Path)) and Path(obj).suffix:
-        return load_object(obj, object_size, mass=mass)
+        decomposition = "hull" if collision == "hull" else "auto"
+        return load_object(obj, object_size, mass=mass, decomposition=decomposition)
     raise ValueError(
         f"obj must be an object name among {tuple(OBJECT_SIZES)}, a mesh path or an "
         f"ObjectMesh, got {obj!r}"
