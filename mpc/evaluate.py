@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import MPC_MODELS
 from torchcontact.mpc.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings, preset
-from torchcontact.mpc.suites import SCENES_VERSION, SUITES
+from torchcontact.mpc.suites import BENCHMARK_COLLISION, SCENES_VERSION, SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json
 from torchcontact.sim.objects import COLLISIONS
@@ -95,7 +95,7 @@ class TrialConfig:
     memory: int = PAPER.memory  # L-BFGS memory
     horizon: int = PAPER.horizon  # T
     scenes: int = SCENES_VERSION  # plants and samplers, see SCENES_VERSION
-    collision: str = "auto"  # how built-in objects collide, see make_object
+    collision: str = BENCHMARK_COLLISION  # how the object collides, see make_object
 
     @property
     def name(self) -> str:
@@ -297,10 +297,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--collision",
         choices=COLLISIONS,
-        default="auto",
-        help="how the object collides: auto (default: its convex hull, as the paper's mesh "
-        "objects do, but part by part for the bowl, cup, mug and torus, whose hole or cavity "
-        "a fingertip reaches), hull, or parts (every object part by part)",
+        default=BENCHMARK_COLLISION,
+        help="how the object collides: hull (default: its convex hull, as the paper's objects "
+        "do), auto (the hull, but part by part for the bowl, cup, mug and torus, whose hole or "
+        "cavity a fingertip reaches) or parts (every object part by part)",
     )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default=None)

@@ -70,6 +70,16 @@ def test_the_cli_plans_with_each_suites_default_k_and_learn_k_keeps_the_papers()
     assert make_scene("fingertips", "cube").paper_stiffness == 1.0
 
 
+def test_the_benchmark_collides_every_object_as_its_hull_as_the_paper_does():
+    from torchcontact.mpc.suites import SUITES
+
+    assert parse_args(["trifinger"]).collision == "hull"
+    assert parse_args(["trifinger", "--collision", "auto"]).collision == "auto"
+    mug = SUITES["trifinger"].make_env("mug")
+    assert mug.object.collide_hull and len(mug.object.collision_parts) == 1
+    assert not SUITES["trifinger"].make_env("mug", "auto").object.collide_hull
+
+
 def test_records_written_before_the_model_and_solver_options_still_resume(tmp_path, monkeypatch):
     out = tmp_path / "out"
     main([*ARGS, *FAST, "--out", str(out)])
@@ -116,8 +126,8 @@ def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path
     monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: reruns.append(1) or real(*a, **k))
     assert main([*ARGS, *FAST, "--collision", "parts", "--out", str(out)]) == 0
     assert reruns == []
-    assert main([*ARGS, *FAST, "--out", str(out)]) == 0  # the default, "auto": run again
-    assert reruns == [1] and json.loads(path.read_text())["collision"] == "auto"
+    assert main([*ARGS, *FAST, "--out", str(out)]) == 0  # the default, "hull": run again
+    assert reruns == [1] and json.loads(path.read_text())["collision"] == "hull"
 
 
 @pytest.mark.parametrize(
