@@ -24,9 +24,9 @@ from torchcontact.sim.objects import ObjectMesh, object_names
 BENCHMARK_COLLISION = "hull"
 """How the suites' objects collide by default: as their convex hulls, as the paper's objects
 do (each is one mesh geom in its reference scenes, which MuJoCo collides through its hull).
-With the cavities of the bowl, cup, mug and torus open (``"auto"``), the contact cost, which
-pulls the fingertips toward the object's box centre, draws them into the cavity, and a tip
-pushing a wall from inside tips the object over (README, TriFinger and Allegro)."""
+With the cavities of the bowl, cup, mug and torus open (``"auto"``), the TriFinger sampler can
+set such an object down around a resting fingertip, which then stays caught in the cup or
+the torus' tube: each of their failed trials started so (README, TriFinger and Allegro)."""
 
 SCENES_VERSION = 4
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
