@@ -65,7 +65,7 @@ PAPER = MPCSettings()
 
 _TRIFINGER = {
     "fast": MPCSettings(horizon=2),
-    "balanced": MPCSettings(max_iter=10),
+    "balanced": MPCSettings(max_iter=8),
     "accurate": MPCSettings(horizon=6),
 }
 
@@ -81,10 +81,11 @@ PRESETS: dict[str, dict[str, MPCSettings]] = {
 """Presets by environment and name (module docstring: where the values come from). TriFinger's
 ``fast`` (T = 2) was the fastest and most successful setting on the three swept objects, but
 over 8 of the 17 objects it lost 2.5 points of success to T = 4, so ``balanced`` keeps the
-paper's T = 4. Its 10 iterations come from full 17-object sweeps with the objects colliding as
-their hulls (session 9): 5, 10, 15 and 30 iterations reached 96.8, 97.1, 97.4 and 97.4 %
-success, the last three at 13.0, 14.5 and 13.4 ms median (the median step takes 8 iterations
-under any cap of 10 or more), so 10 is the fewest that reach the paper's 97 %;
+paper's T = 4. Its 8 iterations come from full 17-object sweeps with the objects colliding as
+their hulls (session 9): 5, 8, 10, 15 and 30 iterations reached 96.8, 97.6, 97.1, 97.4 and
+97.4 % success (within three trials of each other), 8 and more at 12.1, 13.0–13.6, 14.5 and
+13.4 ms median (the median step takes 8 iterations under any cap of 8 or more), so 8 reaches
+the paper's 97 % with the median step under 13 ms;
 ``accurate`` (T = 6) had the smallest final angle error, at 3× the solve time. The fingertips'
 ``balanced`` caps L-BFGS at 20 iterations since their default K became the stiffer 4.64, which
 needs more of them: over the nine pairs × 20 trials 15, 20 and 30 iterations gave 81.7, 86.1
