@@ -244,8 +244,9 @@ def add_object(
     body.ipos = obj.centre_of_mass.tolist()
     i = obj.inertia
     body.fullinertia = [i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]]
-    collision_meshes = _add_meshes(spec, f"{obj.name}_collision", obj.collision_parts)
-    for mesh_name in collision_meshes:
+    # parts colliding as they are share their mesh assets with the goal marker's
+    prefix = f"{obj.name}_hull" if obj.collide_hull else obj.name
+    for mesh_name in _add_meshes(spec, prefix, obj.collision_parts):
         body.add_geom(
             type=mujoco.mjtGeom.mjGEOM_MESH,
             meshname=mesh_name,
