@@ -72,8 +72,35 @@ def test_structure(model):
     for tip in TIPS:
         geom = model.geom(f"{tip}_geom")
         assert geom.type == mujoco.mjtGeom.mjGEOM_CAPSULE and geom.size[0] == 0.012
-    # the hand never collides with itself, always with contype-1 geoms
-    assert (model.geom_contype == 0).all() and (model.geom_conaffinity == 1).all()
+    # every link collides (objects, floor, the hand itself) but the palm with the finger bases
+    assert (model.geom_contype == 1).all() and (model.geom_conaffinity == 1).all()
+    palm = model.body("palm").id
+    # MuJoCo encodes an excluded pair as body1 << 16 | body2
+    excluded = {frozenset((int(s) >> 16, int(s) & 0xFFFF)) for s in model.exclude_signature}
+    bases = ("ff_base", "mf_base", "rf_base", "th_base", "th_proximal")
+    assert excluded == {frozenset((palm, model.body(b).id)) for b in bases}
+
+
+def test_fingers_collide_with_each_other_and_the_palm(model):
+    data = mujoco.MjData(model)
+    data.qpos[:] = INITIAL_JOINTS
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 0  # the initial grasp pose touches nothing
+
+    def touching(qpos):
+        data.qpos[:] = qpos
+        mujoco.mj_forward(model, data)
+        return {
+            frozenset((model.geom(c.geom1).name, model.geom(c.geom2).name))
+            for c in data.contact[: data.ncon]
+        }
+
+    curled = INITIAL_JOINTS.copy()
+    curled[0:4] = model.jnt_range[0:4, 1]  # index fully flexed: its tip meets the palm
+    assert frozenset(("ff_tip_geom", "palm_geom")) in touching(curled)
+    crossed = INITIAL_JOINTS.copy()
+    crossed[0], crossed[4] = -0.47, 0.47  # index and middle abducted into each other
+    assert any(name.startswith("ff_") for pair in touching(crossed) for name in pair)
 
 
 def test_palm_faces_up(model):
