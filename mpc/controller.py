@@ -1,8 +1,9 @@
 """Receding-horizon contact-implicit MPC through the complementarity-free model (Algorithm 1).
 
 At each real state: detect contacts once and freeze J̃ and φ̃ over the horizon; roll the model
-out for T steps; minimize Σₜ c(qₜ, uₜ) + V(q_T) over u₀…u_{T−1} in their box with projected
-L-BFGS (gradients by autograd); apply u₀; warm-start the next solve from the shifted plan.
+out for T steps (optionally advancing φ̃ along the frozen normal rows, ``gaps="propagated"``);
+minimize Σₜ c(qₜ, uₜ) + V(q_T) over u₀…u_{T−1} in their box with projected L-BFGS (gradients
+by autograd); apply u₀; warm-start the next solve from the shifted plan.
 
 The same controller plans through the complementarity-based baseline, the Anitescu QP with
 relaxed complementarity (:class:`RelaxedQP`, the paper's "implicit MPC"), chosen by name with
@@ -38,6 +39,15 @@ from torchcontact.validation import check_shape, validate_args
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
 
+
+GAPS = ("frozen", "propagated")
+"""How the MPC's model treats the contact distances φ̃ over the horizon, by name.
+
+``"frozen"``: the paper's Algorithm 1, every step of the rollout sees the distances detected at
+the real state. ``"propagated"``: J̃ stays frozen, but each step's distance follows the motion
+the model itself predicts, to first order along the frozen normal rows,
+``φ_{t+1} = φ_t + h Jⁿ v_t``: a tip the plan moves off the object stops pushing it later in the
+horizon, and one it presses in pushes harder (complementarity-free model only)."""
 
 MPC_MODELS = ("complementarity_free", "qp")
 """Contact models the MPC plans through, by name; ``"qp"`` is the relaxed, differentiable QP."""
@@ -103,6 +113,7 @@ class ContactImplicitMPC:
             (fast steps; the first call compiles, cached on disk after that); for the relaxed
             QP also each of its interior-point iterations.
         dtype: of the solve.
+        gaps: ``"frozen"`` or ``"propagated"`` distances over the horizon, see :data:`GAPS`.
     """
 
     def __init__(
@@ -120,6 +131,7 @@ class ContactImplicitMPC:
         memory: int = 8,
         compile: bool = False,
         dtype: torch.dtype = torch.float64,
+        gaps: str = "frozen",
     ):
         if not isinstance(horizon, int) or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
@@ -130,11 +142,15 @@ class ContactImplicitMPC:
                 "model must be a ComplementarityFree or a RelaxedQP (the MPC differentiates "
                 f"through it), got {type(model).__name__}"
             )
+        if gaps not in GAPS:
+            raise ValueError(f"gaps must be one of {GAPS}, got {gaps!r}")
+        if gaps == "propagated" and isinstance(model, RelaxedQP):
+            raise ValueError("gaps='propagated' needs the complementarity-free model, not a QP")
         self.system = system.to(dtype)
         self.model = model.to(dtype)
         self.layout, self.fingertips, self.cost = layout, fingertips, cost
         self.horizon, self.h, self.dtype = horizon, float(h), dtype
-        self.max_iter, self.memory = max_iter, memory
+        self.max_iter, self.memory, self.gaps = max_iter, memory, gaps
         n_u = system.n_robot
         self.lower = torch.as_tensor(u_lower, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
         self.upper = torch.as_tensor(u_upper, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
@@ -153,14 +169,19 @@ class ContactImplicitMPC:
     def frozen_rows(self, q: torch.Tensor, contacts: Contacts) -> tuple:
         """The model's data frozen over the horizon, from the contacts at ``q (nq,)``.
 
-        Complementarity-free: ``(J̃ (m, nv), φ̃ (m,), K (m,), D (m,) or None)``; relaxed QP:
+        Complementarity-free: ``(J̃ (m, nv), φ̃ (m,), K (m,), D (m,) or None)``, and with
+        propagated gaps also each row's contact normal row ``Jⁿ (m, nv)``; relaxed QP:
         ``(J̃, φ̃, active (m,))``, to which :meth:`value_and_grad` appends the QP's solution.
         """
         jac, phi, active = contacts.dual_rows(self.model.facets)
         if isinstance(self.model, RelaxedQP):
             return jac, phi, active
         K, D = self.model.coefficients(contacts, q)
-        return jac, phi, K.expand(phi.shape), None if D is None else D.expand(phi.shape)
+        rows = (jac, phi, K.expand(phi.shape), None if D is None else D.expand(phi.shape))
+        if self.gaps == "frozen":
+            return rows
+        normal = contacts.jac_normal * contacts.active.to(phi.dtype).unsqueeze(-1)
+        return (*rows, normal.repeat_interleave(self.model.facets, dim=-2))
 
     def velocity(self, Q: torch.Tensor, b: torch.Tensor, rows: tuple) -> torch.Tensor:
         """The model's next velocity ``(..., nv)`` with the :meth:`frozen_rows` ``rows``."""
@@ -178,18 +199,26 @@ class ContactImplicitMPC:
                 solution=solution[0] if solution else None,
             )
             return v
-        jac, phi, K, D = rows
+        jac, phi, K, D = rows[:4]
         return cf_velocity(Q, b, jac, phi, self.h, K, D, self.model.gamma)
 
     def rollout(self, q0, controls, rows: tuple) -> torch.Tensor:
         """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
 
-        The :meth:`frozen_rows` ``rows`` stay frozen over the horizon, as does Q: so each
-        step's velocity depends on its own control only and all T are computed at once.
+        The :meth:`frozen_rows` ``rows`` stay frozen over the horizon, as does Q: so with
+        frozen gaps each step's velocity depends on its own control only and all T are computed
+        at once; propagated gaps chain the steps through φ̃.
         """
         Q, b = self.system(controls)
-        v = self.velocity(Q, b, rows)
         states = [q0.expand(*controls.shape[:-2], -1)]
+        if self.gaps == "propagated":
+            jac, phi, K, D, normal = rows
+            for t in range(self.horizon):
+                v = cf_velocity(Q, b[..., t, :], jac, phi, self.h, K, D, self.model.gamma)
+                states.append(integrate(states[-1], v, self.h, self.layout))
+                phi = phi + self.h * (normal @ v.unsqueeze(-1)).squeeze(-1)
+            return torch.stack(states, dim=-2)
+        v = self.velocity(Q, b, rows)
         for t in range(self.horizon):
             states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
         return torch.stack(states, dim=-2)

@@ -33,7 +33,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.mpc import tasks
-from torchcontact.mpc.controller import MPC_MODELS
+from torchcontact.mpc.controller import GAPS, MPC_MODELS
 from torchcontact.mpc.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings, preset
 from torchcontact.mpc.suites import BENCHMARK_COLLISION, SCENES_VERSION, SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
@@ -59,6 +59,7 @@ LEGACY_DEFAULTS = {
     "horizon": PAPER.horizon,
     "scenes": 1,
     "collision": "parts",
+    "gaps": "frozen",
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -96,6 +97,7 @@ class TrialConfig:
     horizon: int = PAPER.horizon  # T
     scenes: int = SCENES_VERSION  # plants and samplers, see SCENES_VERSION
     collision: str = BENCHMARK_COLLISION  # how the object collides, see make_object
+    gaps: str = PAPER.gaps  # contact distances over the horizon, see controller.GAPS
 
     @property
     def name(self) -> str:
@@ -267,6 +269,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
     parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")
     parser.add_argument(
+        "--gaps",
+        choices=GAPS,
+        default=None,
+        help="contact distances over the horizon: frozen (the paper's Algorithm 1) or "
+        "propagated along the frozen normal rows (complementarity_free only); default the "
+        "preset's, frozen for qp",
+    )
+    parser.add_argument(
         "--model",
         choices=MPC_MODELS,
         default=DEFAULT_MODEL,
@@ -324,6 +334,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             "--learned replaces the constant K of complementarity_free: drop --model qp "
             "and --stiffness"
         )
+    if qp and args.gaps == "propagated":
+        parser.error("--gaps propagated is for complementarity_free; the qp plans with frozen gaps")
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
     for name in ("trials", "workers", "max_iter", "memory", "horizon"):
@@ -333,6 +345,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "max_iter": args.max_iter,
         "memory": args.memory,
         "horizon": args.horizon,
+        "gaps": "frozen" if qp and args.gaps is None else args.gaps,
         "dtype": args.dtype,
         "compile": False if args.no_compile else None,
     }
@@ -374,7 +387,7 @@ def _run_job(job: Job) -> dict:
     torch.set_num_threads(1)
     c = job.config
     key = (c.env, c.object, c.max_iter, c.compile, c.dtype, c.stiffness, c.model, c.relaxation)
-    key += (c.learned, c.memory, c.horizon, c.collision)
+    key += (c.learned, c.memory, c.horizon, c.collision, c.gaps)
     if _CACHE.get("key") != key:
         suite = SUITES[c.env]
         _CACHE.clear()
@@ -394,6 +407,7 @@ def _run_job(job: Job) -> dict:
                 max_iter=c.max_iter,
                 memory=c.memory,
                 horizon=c.horizon,
+                gaps=c.gaps,
                 compile=c.compile,
                 dtype=getattr(torch, c.dtype),
             ),
@@ -452,6 +466,7 @@ def main(argv: list[str] | None = None) -> int:
                 memory=settings.memory,
                 horizon=settings.horizon,
                 collision=args.collision,
+                gaps=settings.gaps,
             )
             path = trials_dir / f"{config.name}.json"
             record = _finished(path, config)

@@ -21,6 +21,8 @@ from dataclasses import asdict, dataclass
 
 import torch
 
+from torchcontact.mpc.controller import GAPS
+
 
 @dataclass(frozen=True)
 class MPCSettings:
@@ -32,6 +34,8 @@ class MPCSettings:
         horizon: T, model steps planned ahead.
         dtype: ``"float32"`` or ``"float64"``, of the solve.
         compile: ``torch.compile`` the objective and optimizer steps (else eager).
+        gaps: ``"frozen"`` (the paper's) or ``"propagated"`` contact distances over the
+            horizon, see :data:`~torchcontact.mpc.controller.GAPS`.
     """
 
     max_iter: int = 30
@@ -39,6 +43,7 @@ class MPCSettings:
     horizon: int = 4
     dtype: str = "float64"
     compile: bool = True
+    gaps: str = "frozen"
 
     def __post_init__(self):
         for name in ("max_iter", "memory", "horizon"):
@@ -47,6 +52,8 @@ class MPCSettings:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.gaps not in GAPS:
+            raise ValueError(f"gaps must be one of {GAPS}, got {self.gaps!r}")
 
     def options(self) -> dict:
         """Keyword arguments of the MPC factories (``dtype`` as a torch dtype)."""
@@ -56,7 +63,8 @@ class MPCSettings:
     def label(self) -> str:
         """Short description: ``it30 m8 T4 f64 compiled``."""
         mode = "compiled" if self.compile else "eager"
-        return f"it{self.max_iter} m{self.memory} T{self.horizon} f{self.dtype[-2:]} {mode}"
+        label = f"it{self.max_iter} m{self.memory} T{self.horizon} f{self.dtype[-2:]} {mode}"
+        return label if self.gaps == "frozen" else f"{label}, {self.gaps} gaps"
 
 
 PAPER = MPCSettings()

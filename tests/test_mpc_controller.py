@@ -9,9 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcontact import AnitescuQP
+from torchcontact.functional import cf_velocity
 from torchcontact.integrate import integrate
 from torchcontact.mpc import tasks
-from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.controller import GAPS, ContactImplicitMPC
 from torchcontact.mpc.fingertips import CONTROL_BOUND, LAYOUT, fingertip_positions, fingertips_mpc
 from torchcontact.sim import FingertipsEnv
 
@@ -29,6 +30,11 @@ def env():
 @pytest.fixture(scope="module")
 def mpc():
     return fingertips_mpc("cube", max_iter=15)
+
+
+@pytest.fixture(scope="module")
+def propagated_mpc():
+    return fingertips_mpc("cube", max_iter=15, gaps="propagated")
 
 
 @pytest.fixture(scope="module")
@@ -64,7 +70,49 @@ def test_rollout_equals_stepping_the_model(env, model, request):
             torch.testing.assert_close(states[b, t + 1], state)
 
 
-@pytest.mark.parametrize("model", ["mpc", "qp_mpc"])
+def test_propagated_gaps_follow_the_models_own_motion(env):
+    """Each step sees φ̃ advanced along the frozen normal rows by the steps before it; the first
+    step, and every step with frozen gaps, sees the detected distances."""
+    frozen, propagated = fingertips_mpc("cube"), fingertips_mpc("cube", gaps="propagated")
+    q, contacts = _touching_state(env)
+    rows = propagated.frozen_rows(q, contacts)
+    jac, phi, K, D, normal = rows
+    torch.testing.assert_close(normal[::4], contacts.jac_normal * contacts.active.unsqueeze(-1))
+    controls = 0.004 * torch.randn(2, propagated.horizon, 9, dtype=DT)
+    states = propagated.rollout(q, controls, rows)
+    Q, bias = propagated.system(controls)
+    gap = phi.expand(2, -1)
+    for t in range(propagated.horizon):
+        v = cf_velocity(Q, bias[:, t], jac, gap, propagated.h, K, D, propagated.model.gamma)
+        torch.testing.assert_close(states[:, t + 1], integrate(states[:, t], v, 0.1, LAYOUT))
+        gap = gap + propagated.h * v @ normal.T
+    first = frozen.rollout(q, controls, frozen.frozen_rows(q, contacts))
+    torch.testing.assert_close(states[:, 1], first[:, 1])
+    assert not torch.allclose(states[:, -1], first[:, -1])
+
+
+def test_propagated_gaps_release_a_tip_the_plan_pulls_away(env):
+    """Tip 0 pressed 1 mm into the cube, then pulled 5 mm away per step: frozen gaps keep
+    pushing the cube every step, propagated ones stop once the modelled gap has opened."""
+    q, contacts = _touching_state(env)
+    controls = torch.zeros(1, 4, 9, dtype=DT)
+    controls[..., 0] = 0.005  # +x: away from the cube's +x face
+    pushes = {}
+    for gaps in GAPS:
+        mpc = fingertips_mpc("cube", gaps=gaps)
+        states = mpc.rollout(q, controls, mpc.frozen_rows(q, contacts))
+        pushes[gaps] = (states[0, 2:, 0] - states[0, 1:-1, 0]).abs().sum()
+    assert float(pushes["propagated"]) < 0.1 * float(pushes["frozen"])
+
+
+def test_propagated_gaps_are_for_the_complementarity_free_model():
+    with pytest.raises(ValueError, match="gaps"):
+        fingertips_mpc("cube", model="qp", gaps="propagated")
+    with pytest.raises(ValueError, match="gaps"):
+        fingertips_mpc("cube", gaps="updated")
+
+
+@pytest.mark.parametrize("model", ["mpc", "propagated_mpc", "qp_mpc"])
 def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, model, request):
     mpc = request.getfixturevalue(model)
     q, contacts = _touching_state(env)
