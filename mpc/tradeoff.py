@@ -84,6 +84,7 @@ def run_sweep(
         argv = [env, "--task", task, "--object", obj, "--trials", str(trials)]
         argv += ["--max-iter", str(s.max_iter), "--memory", str(s.memory)]
         argv += ["--horizon", str(s.horizon), "--dtype", s.dtype, "--workers", str(workers)]
+        argv += ["--gaps", s.gaps]
         argv += ["--out", str(out / env / _folder(label)), "--no-progress"]
         argv += [] if s.compile else ["--no-compile"]
         argv += [] if max_steps is None else ["--max-steps", str(max_steps)]

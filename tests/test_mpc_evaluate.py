@@ -80,9 +80,17 @@ def test_the_benchmark_collides_every_object_as_its_hull_as_the_paper_does():
     assert not SUITES["trifinger"].make_env("mug", "auto").object.collide_hull
 
 
+def test_the_qp_plans_with_frozen_gaps_whatever_the_preset():
+    assert parse_args(["fingertips", "--model", "qp"]).settings.gaps == "frozen"
+    assert parse_args(["fingertips", "--gaps", "propagated"]).settings.gaps == "propagated"
+    assert parse_args(["fingertips", "--gaps", "frozen"]).settings.gaps == "frozen"
+
+
 def test_records_written_before_the_model_and_solver_options_still_resume(tmp_path, monkeypatch):
+    """Records lacking a key count as its value before the option existed (frozen gaps)."""
     out = tmp_path / "out"
-    main([*ARGS, *FAST, "--out", str(out)])
+    frozen = [*FAST, "--gaps", "frozen"]
+    main([*ARGS, *frozen, "--out", str(out)])
     path = out / "trials" / "fingertips_rotation_cube_seed0.json"
     record = json.loads(path.read_text())
     path.write_text(
@@ -90,12 +98,12 @@ def test_records_written_before_the_model_and_solver_options_still_resume(tmp_pa
             {
                 k: v
                 for k, v in record.items()
-                if k not in ("model", "relaxation", "memory", "horizon")
+                if k not in ("model", "relaxation", "memory", "horizon", "gaps")
             }
         )
     )
     monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: pytest.fail("run again"))
-    assert main([*ARGS, *FAST, "--out", str(out)]) == 0
+    assert main([*ARGS, *frozen, "--out", str(out)]) == 0
 
 
 def test_records_of_older_scenes_are_run_again(tmp_path, monkeypatch):
@@ -145,6 +153,8 @@ def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path
         (["--horizon", "0"], "--horizon"),
         (["--memory", "0"], "--memory"),
         (["--collision", "convex"], "--collision"),
+        (["--gaps", "updated"], "--gaps"),
+        (["--model", "qp", "--gaps", "propagated"], "--gaps"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, capsys, bad, message):

@@ -28,6 +28,13 @@ def test_every_environment_has_the_three_presets_and_balanced_is_the_default():
         assert preset_options(env) == PRESETS[env]["balanced"].options()
 
 
+def test_the_fingertips_plan_with_propagated_gaps_by_default_the_hands_with_frozen():
+    assert PRESETS["fingertips"]["balanced"].gaps == "propagated"
+    assert PRESETS["trifinger"]["balanced"].gaps == PRESETS["allegro"]["balanced"].gaps == "frozen"
+    assert parse_args(["fingertips"]).settings.gaps == "propagated"
+    assert "propagated gaps" in PRESETS["fingertips"]["balanced"].label
+
+
 def test_the_swept_environments_presets_are_all_in_the_measured_grid():
     for env in ("fingertips", "trifinger"):
         assert all(p.label in GRID for p in PRESETS[env].values())
@@ -61,6 +68,7 @@ def test_preset_options_build_the_mpc_they_name():
         (dict(memory=2.5), "memory"),
         (dict(horizon=-1), "horizon"),
         (dict(dtype="float16"), "dtype"),
+        (dict(gaps="moving"), "gaps"),
     ],
 )
 def test_bad_settings_are_refused_by_name(bad, message):
