@@ -199,7 +199,7 @@ class ContactImplicitMPC:
                 solution=solution[0] if solution else None,
             )
             return v
-        jac, phi, K, D = rows[:4]
+        jac, phi, K, D = rows
         return cf_velocity(Q, b, jac, phi, self.h, K, D, self.model.gamma)
 
     def rollout(self, q0, controls, rows: tuple) -> torch.Tensor:
@@ -214,7 +214,7 @@ class ContactImplicitMPC:
         if self.gaps == "propagated":
             jac, phi, K, D, normal = rows
             for t in range(self.horizon):
-                v = cf_velocity(Q, b[..., t, :], jac, phi, self.h, K, D, self.model.gamma)
+                v = self.velocity(Q, b[..., t, :], (jac, phi, K, D))
                 states.append(integrate(states[-1], v, self.h, self.layout))
                 phi = phi + self.h * (normal @ v.unsqueeze(-1)).squeeze(-1)
             return torch.stack(states, dim=-2)

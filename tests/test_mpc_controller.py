@@ -84,7 +84,9 @@ def test_propagated_gaps_follow_the_models_own_motion(env):
     gap = phi.expand(2, -1)
     for t in range(propagated.horizon):
         v = cf_velocity(Q, bias[:, t], jac, gap, propagated.h, K, D, propagated.model.gamma)
-        torch.testing.assert_close(states[:, t + 1], integrate(states[:, t], v, 0.1, LAYOUT))
+        torch.testing.assert_close(
+            states[:, t + 1], integrate(states[:, t], v, propagated.h, LAYOUT)
+        )
         gap = gap + propagated.h * v @ normal.T
     first = frozen.rollout(q, controls, frozen.frozen_rows(q, contacts))
     torch.testing.assert_close(states[:, 1], first[:, 1])
