@@ -116,8 +116,9 @@ def run_trial(
     mpc.reset()
     criterion = dataclasses.replace(suite.criterion, max_steps=config.max_steps)
     tracker = tasks.SuccessTracker(target, criterion)
-    target_p = torch.as_tensor(target[:3])
-    target_quat = torch.as_tensor(target[3:])
+    aim = tasks.aim_pose(target, env.resting_height(target[3:]), criterion.position_tolerance)
+    target_p = torch.as_tensor(aim[:3])
+    target_quat = torch.as_tensor(aim[3:])
     detect_ms, solve_ms, sim_ms, iterations, found = [], [], [], [], []
     for step in range(criterion.max_steps):
         t0 = time.perf_counter()
@@ -147,6 +148,7 @@ def run_trial(
         "angle_err_deg": float(tasks.angle_error(final[3:], target[3:])),
         "initial_pose": initial.tolist(),
         "target_pose": target.tolist(),
+        "aim_pose": aim.tolist(),
         "final_pose": final.tolist(),
         "detect_ms": detect_ms,
         "solve_ms": solve_ms,

@@ -28,7 +28,7 @@ With the cavities of the bowl, cup, mug and torus open (``"auto"``), the TriFing
 set such an object down around a resting fingertip, which then stays caught in the cup or
 the torus' tube: each of their failed trials started so (README, TriFinger and Allegro)."""
 
-SCENES_VERSION = 5
+SCENES_VERSION = 6
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
 resumed sweep reruns trials from older versions. 2: object poses at the box centre (bunny and
 cup lower, as the reference's meshes), the reference scenes' per-object friction, Allegro sizes
@@ -37,7 +37,8 @@ rolled them off the upright resting pose the samplers assume); the TriFinger MPC
 cost on objects that tip before they slide. 4: the Allegro MPC's final position weight 300
 (the paper's 100 let it turn objects off the palm); the TriFinger's contacts are detected
 5 mm before touch (``Hand.contact_margin``). 5: the Allegro's links collide with each other
-and with the palm, as on the real hand (Menagerie's and the reference's models)."""
+and with the palm, as on the real hand (Menagerie's and the reference's models). 6: the MPC
+plans toward :func:`~torchcontact.mpc.tasks.aim_pose`, flip targets raised out of the ground."""
 
 
 @dataclass(frozen=True)

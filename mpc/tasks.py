@@ -169,6 +169,36 @@ ALLEGRO_SUCCESS = SuccessCriterion(
 )
 """Allegro on-palm: orientation only, e < 0.04 (23.1°), 20 steps, 500 steps at most."""
 
+AIM_LIFT_FRACTION = 0.5
+"""How far :func:`aim_pose` may raise a sunken target, as a fraction of the position tolerance."""
+
+
+def aim_pose(target_pose, resting_height: float, position_tolerance: float) -> np.ndarray:
+    """The ``(7,)`` pose the MPC plans toward for ``target_pose (7,)``: raised out of its support.
+
+    The flip targets' height is the object's whatever their tilt (the reference's), so most
+    tilted targets sink into the ground: the foam brick's by up to 21 mm. Planning toward
+    such a target presses the object down, and the ground's friction then holds it flat. The
+    aim is the target raised toward ``resting_height`` [m] (the lowest height at which the
+    object in the target's orientation does not sink, :meth:`Plant.resting_height`), by at
+    most :data:`AIM_LIFT_FRACTION` of ``position_tolerance`` [m], so that reaching the aim
+    still counts as reaching the target; success is judged against the target itself. A
+    target at or above its resting height (every sampled rotation and hand target, most
+    in-air ones) is returned unchanged.
+    """
+    target = np.asarray(target_pose, dtype=float)
+    if target.shape != (7,) or not np.all(np.isfinite(target)):
+        raise ValueError(f"target_pose must be 7 finite numbers, got {target_pose!r}")
+    if not math.isfinite(resting_height):
+        raise ValueError(f"resting_height must be a finite height [m], got {resting_height!r}")
+    if not position_tolerance > 0:
+        raise ValueError(f"position_tolerance must be positive, got {position_tolerance!r}")
+    lift = min(resting_height - target[2], AIM_LIFT_FRACTION * position_tolerance)
+    aim = target.copy()
+    aim[2] += max(lift, 0.0)
+    return aim
+
+
 IN_HAND_XY_RANGE = 0.05
 """TriFinger initial and target x, y ~ U[−0.05, 0.05] [m]; yaw ~ U[−π/2, π/2]."""
 

@@ -27,6 +27,7 @@ def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
     assert (out / "results.png").stat().st_size > 0
     record = json.loads((out / "trials" / "fingertips_rotation_cube_seed0.json").read_text())
     assert record["steps"] == 15 and len(record["solve_ms"]) == 15
+    assert record["aim_pose"] == record["target_pose"]  # a rotation target rests already
     printed = capsys.readouterr().out
     assert "rotation" in printed and "success 0.0% of 1" in printed
 

@@ -13,6 +13,7 @@ from torchcontact.mpc.tasks import (
     PAPER_PAIRS,
     SuccessCriterion,
     SuccessTracker,
+    aim_pose,
     angle_error,
     position_error,
     quat_from_axis_angle,
@@ -211,3 +212,47 @@ def test_allegro_suite_starts_the_stick_across_the_palm():
     for seed in range(5):
         initial, _ = SUITES["allegro"].sample(env, "on-palm", "stick", seed)
         assert low <= 2 * np.arctan2(initial[6], initial[3]) <= high
+
+
+def test_the_aim_rises_out_of_the_support_by_at_most_half_the_tolerance():
+    target = np.array([0.05, -0.02, 0.03, 1.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(aim_pose(target, 0.03, 0.02), target)  # resting: unchanged
+    np.testing.assert_array_equal(aim_pose(target, 0.01, 0.02), target)  # above: unchanged
+    raised = aim_pose(target, 0.036, 0.02)  # sunk by 6 mm: raised onto the support
+    assert raised[2] == pytest.approx(0.036)
+    np.testing.assert_array_equal(np.delete(raised, 2), np.delete(target, 2))
+    assert aim_pose(target, 0.051, 0.02)[2] == pytest.approx(0.04)  # 21 mm: capped at 10 mm
+    assert aim_pose(target, 0.051, math.inf)[2] == pytest.approx(0.051)  # no position criterion
+
+
+def test_most_flip_targets_of_the_foam_brick_sink_and_are_aimed_above_them():
+    from torchcontact.sim.fingertips import FingertipsEnv
+
+    env = FingertipsEnv("foam_brick")
+    assert env.support_height == 0.0  # the ground
+    assert env.resting_height([1.0, 0.0, 0.0, 0.0]) == env.object.resting_height()
+    lifts = []
+    for seed in SEEDS:
+        _, target = sample("flip", "foam_brick", seed)
+        resting = env.resting_height(target[3:])
+        aim = aim_pose(target, resting, 0.02)
+        lifts.append(aim[2] - target[2])
+        assert aim[2] <= max(target[2], resting) + 1e-12  # never above the resting height
+    assert min(lifts) >= 0 and max(lifts) == pytest.approx(0.01) and np.mean(lifts) > 0.005
+    for seed in SEEDS:  # on-ground rotation targets rest already
+        _, target = sample("rotation", "foam_brick", seed)
+        assert aim_pose(target, env.resting_height(target[3:]), 0.02)[2] == pytest.approx(target[2])
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((np.zeros(6), 0.03, 0.02), "target_pose"),
+        ((np.array([0, 0, np.nan, 1, 0, 0, 0]), 0.03, 0.02), "target_pose"),
+        ((np.array([0, 0, 0.03, 1, 0, 0, 0]), math.nan, 0.02), "resting_height"),
+        ((np.array([0, 0, 0.03, 1, 0, 0, 0]), 0.03, 0.0), "position_tolerance"),
+    ],
+)
+def test_bad_aim_input_names_the_argument(args, message):
+    with pytest.raises(ValueError, match=message):
+        aim_pose(*args)

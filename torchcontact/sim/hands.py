@@ -339,7 +339,7 @@ class HandEnv(Plant):
         simulation pushes them apart in its first substeps."""
         xy = as_vector("xy", xy, 2)
         quat = as_pose("quat", [0.0, 0.0, 0.0, *as_vector("quat", quat, 4)])[3:]
-        z = self.support_height + self.object.resting_height(quat)
+        z = self.resting_height(quat)
         return np.concatenate([xy, [z], quat])
 
     def reset(self, object_pose, target_pose=None, joints=None) -> np.ndarray:

@@ -36,6 +36,8 @@ class Plant:
     data: mujoco.MjData
     detector: ContactDetector
     object: ObjectMesh
+    support_height: float = 0.0
+    """Height [m] of the plane the object rests on: the ground, or a hand's palm."""
 
     def __init__(self):
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
@@ -62,6 +64,11 @@ class Plant:
     def target(self) -> np.ndarray:
         """``(7,)`` pose of the goal marker."""
         return np.concatenate([self.data.mocap_pos[0], self.data.mocap_quat[0]])
+
+    def resting_height(self, quat) -> float:
+        """Height [m] of the object's origin when, turned by ``quat (4,)`` (w, x, y, z), it
+        rests on the support: the lowest height at which it does not sink into it."""
+        return self.support_height + self.object.resting_height(quat)
 
     def state(self) -> np.ndarray:
         """``(nq,)`` copy of q: object position, quaternion, then the robot's coordinates."""
