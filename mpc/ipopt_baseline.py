@@ -1,0 +1,256 @@
+"""The paper's MPC solved the paper's way, CasADi + IPOPT: the speed baseline of our L-BFGS.
+
+The paper's reference code states its MPC as a multiple-shooting NLP and solves it with IPOPT
+(through CasADi, at most 50 iterations, warm-started from the previous solution). The issue's
+speed target is relative to that implementation on the same machine, so
+``benchmarks/ipopt_speed.py`` times :class:`IpoptMPC` beside our :class:`ContactImplicitMPC`
+on the same states in one run. The problem is our MPC's, read from the controller it is built
+on: the complementarity-free step with J̃, φ̃, K, D frozen over the horizon (as the paper's
+Algorithm 1), the same cost terms and weights, the same control box. As in the paper's code:
+
+- decision variables ``w = (u₀, q₁, u₁, q₂, …, u_{T−1}, q_T)``, constraints ``q_{t+1} =
+  f(q_t, u_t)``, optionally the tips' heights bounded (the reference's first guess is all
+  zeros; ours holds the current state, since zero quaternions make the grasp term's rotation
+  NaN);
+- the object's quaternion moves by the first-order update ``q + ½h·G(q)ᵀω`` (ω in the body
+  frame), not renormalised; our rollout rotates it exactly (:func:`torchcontact.integrate`),
+  so the two optima differ slightly;
+- IPOPT with its defaults (MUMPS), a cap on its iterations, given the previous primal and
+  dual solution as its start.
+
+Only the fingertips are supported: their tips are coordinates of q (the hands' would need
+their forward kinematics written in CasADi).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from torchcontact.contacts import Contacts
+from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.fingertips import LAYOUT, fingertip_positions
+from torchcontact.validation import check_shape
+
+REFERENCE_MAX_ITER = 50
+"""IPOPT's iteration cap in the paper's reference code."""
+
+
+@dataclass(frozen=True)
+class IpoptPlan:
+    """One IPOPT solve: the control to apply and how the solve went."""
+
+    control: np.ndarray  # (n_u,) u₀
+    controls: np.ndarray  # (T, n_u)
+    cost: float
+    iterations: int
+    status: str  # IPOPT's return status, e.g. "Solve_Succeeded", "Maximum_Iterations_Exceeded"
+    solve_ms: float  # wall time of the solve, the frozen rows' extraction included
+
+
+def _softplus(x, gamma: float):
+    """log(1 + exp(γx))/γ without overflow: max(x, 0) + log1p(exp(−γ|x|))/γ."""
+    import casadi as cs
+
+    return cs.fmax(x, 0) + cs.log1p(cs.exp(-gamma * cs.fabs(x))) / gamma
+
+
+def _body_rate_matrix(quat):
+    """G(q) (3, 4) with q̇ = ½ G(q)ᵀ ω for the body-frame angular velocity ω."""
+    import casadi as cs
+
+    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    return cs.vertcat(
+        cs.horzcat(-x, w, z, -y),
+        cs.horzcat(-y, -z, w, x),
+        cs.horzcat(-z, y, -x, w),
+    )
+
+
+class IpoptMPC:
+    """The MPC problem of ``mpc`` (fingertips) as a multiple-shooting NLP solved by IPOPT.
+
+    Args:
+        mpc: the controller whose model, system, cost, box, horizon and h are solved; its
+            frozen rows come from :meth:`ContactImplicitMPC.frozen_rows` (frozen gaps only).
+        n_rows: rows of J̃ (contact slots × facets) the NLP is built for.
+        max_iter: IPOPT's iteration cap (the reference's hands: 50; its fingertips: 100 for
+            the foam brick, 500 for the cube).
+        tip_height: ``(low, high)`` [m] bounds on the planned tips' heights, as the reference's
+            fingertip MPCs bound their states (z ≥ 0, and ≤ 0.1 m for the foam brick and the
+            stick); None leaves the states unbounded.
+    """
+
+    def __init__(
+        self,
+        mpc: ContactImplicitMPC,
+        n_rows: int,
+        max_iter: int = REFERENCE_MAX_ITER,
+        tip_height: tuple[float, float] | None = None,
+    ):
+        import casadi as cs
+
+        if mpc.gaps != "frozen":
+            raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
+        if mpc.layout.joints != LAYOUT.joints or mpc.fingertips is not fingertip_positions:
+            raise ValueError("the IPOPT baseline supports the three fingertips' MPC only")
+        if not isinstance(n_rows, int) or n_rows < 1:
+            raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
+        if not isinstance(max_iter, int) or max_iter < 1:
+            raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+        self.mpc, self.n_rows = mpc, n_rows
+        nq, nv, n_u, T = 16, 15, mpc.system.n_robot, mpc.horizon
+        h, cost, gamma = mpc.h, mpc.cost, mpc.model.gamma
+        metric = mpc.system.metric().double().numpy()
+        object_force = mpc.system.object_force.double().numpy()
+        stiffness = mpc.system.robot_stiffness.double().numpy()
+
+        q0 = cs.SX.sym("q0", nq)
+        target_p, target_q = cs.SX.sym("target_p", 3), cs.SX.sym("target_q", 4)
+        phi, K, D = (cs.SX.sym(name, n_rows) for name in ("phi", "K", "D"))
+        jac = cs.SX.sym("jac", n_rows, nv)
+
+        def step(q, u):
+            b = cs.vertcat(cs.DM(object_force), cs.DM(stiffness) * u)
+            free = b / cs.DM(metric)  # Q⁻¹b
+            gap_change = cs.mtimes(jac, free)
+            lam = _softplus(-K * (gap_change + phi) - D * gap_change / h, gamma)
+            v = (free + cs.mtimes(jac.T, lam) / cs.DM(metric)) / h
+            quat = q[3:7] + 0.5 * h * cs.mtimes(_body_rate_matrix(q[3:7]).T, v[3:6])
+            return cs.vertcat(q[0:3] + h * v[0:3], quat, q[7:] + h * v[6:])
+
+        def tips(q):
+            return [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
+
+        def rotation(quat):  # R(q/‖q‖) of a quaternion (w, x, y, z), as the torch cost's
+            w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+            s = 2 / cs.sumsqr(quat)
+            return cs.vertcat(
+                cs.horzcat(1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)),
+                cs.horzcat(s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)),
+                cs.horzcat(s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)),
+            )
+
+        def up(quat):
+            return rotation(quat)[:, 2]
+
+        def path_cost(q, u):  # on q₀…q_{T−1}: contact, grasp and control terms
+            offsets = [tip - q[0:3] for tip in tips(q)]
+            total = cost.contact * sum(cs.sumsqr(o) for o in offsets)
+            if cost.grasp:
+                directions = sum(o / cs.sqrt(cs.fmax(cs.sumsqr(o), 1e-12)) for o in offsets)
+                total += cost.grasp * cs.sumsqr(cs.mtimes(rotation(q[3:7]).T, directions))
+            return total + cost.control * cs.sumsqr(u)
+
+        def state_cost(q):  # on q₁…q_T: the tilt and tip-height terms of ManipulationCost
+            total = 0
+            if cost.tilt:
+                total += cost.tilt * (1 - cs.dot(up(q[3:7]), up(target_q)))
+            if cost.tip_height is not None:
+                low, high = cost.tip_height
+                for tip in tips(q):
+                    excess = cs.fmax(low - tip[2], 0) ** 2 + cs.fmax(tip[2] - high, 0) ** 2
+                    total += cost.tip_height_weight * excess
+            return total
+
+        w, g, objective, q = [], [], 0, q0
+        for _ in range(T):
+            u = cs.SX.sym(f"u{len(w)}", n_u)
+            objective += path_cost(q, u)
+            predicted = step(q, u)
+            q = cs.SX.sym(f"q{len(w)}", nq)
+            w += [u, q]
+            g.append(predicted - q)
+            objective += state_cost(q)
+        final = cost.position * cs.sumsqr(q[0:3] - target_p)
+        final += cost.orientation * (1 - cs.dot(q[3:7], target_q) ** 2)
+        objective += cost.final * final
+
+        rows = cs.vertcat(phi, cs.vec(jac), K, D)
+        params = cs.vertcat(q0, target_p, target_q, rows)
+        nlp = {"x": cs.vertcat(*w), "f": objective, "g": cs.vertcat(*g), "p": params}
+        options = {
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "print_time": 0,
+            "ipopt.max_iter": max_iter,
+        }
+        self.solver = cs.nlpsol("mpc", "ipopt", nlp, options)
+        q, u = cs.SX.sym("q", nq), cs.SX.sym("u", n_u)
+        self.step_function = cs.Function("step", [q, u, rows], [step(q, u)])
+        """``(q (16,), u (9,), rows) ↦ q⁺``: the NLP's model step; ``rows`` are the parameter
+        vector's entries after the target (:meth:`parameters`)."""
+        lower = mpc.lower.reshape(T, n_u).double().numpy()
+        upper = mpc.upper.reshape(T, n_u).double().numpy()
+        state_low, state_high = np.full(nq, -np.inf), np.full(nq, np.inf)
+        if tip_height is not None:
+            low, high = tip_height
+            if not low < high:
+                raise ValueError(
+                    f"tip_height must be (low, high) with low < high, got {tip_height}"
+                )
+            state_low[9::3], state_high[9::3] = low, high  # the tips' z: q[9], q[12], q[15]
+        self._lbx = np.concatenate([np.concatenate([lo, state_low]) for lo in lower])
+        self._ubx = np.concatenate([np.concatenate([hi, state_high]) for hi in upper])
+        self._shape, self._nq = (T, n_u), nq
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous solution: the next solve starts from zero controls with every
+        state at the current one (the reference's all-zero start would put zero quaternions
+        into the grasp term's rotation)."""
+        self._guess = None
+
+    def parameters(self, q, contacts: Contacts, target_p, target_quat) -> np.ndarray:
+        """The NLP's parameter vector at state ``q (16,)``: q₀, the target and the frozen rows."""
+        q = torch.as_tensor(q, dtype=torch.float64)
+        check_shape("q", q, "(16,)", q.shape == (16,))
+        with torch.no_grad():
+            jac, phi, K, D = self.mpc.frozen_rows(q.to(self.mpc.dtype), contacts.to(self.mpc.dtype))
+        if phi.shape[-1] != self.n_rows:
+            raise ValueError(f"contacts must give {self.n_rows} rows, got {phi.shape[-1]}")
+        K = K.expand(phi.shape)
+        D = torch.zeros_like(phi) if D is None else D.expand(phi.shape)
+        pieces = [
+            q,
+            torch.as_tensor(target_p),
+            torch.as_tensor(target_quat),
+            phi,
+            jac.mT.reshape(-1),  # CasADi's vec() stacks columns
+            K,
+            D,
+        ]
+        return torch.cat([x.double().reshape(-1) for x in pieces]).numpy()
+
+    def plan(self, q, contacts: Contacts, target_p, target_quat) -> IpoptPlan:
+        """Solve at state ``q (16,)`` from the previous solution; returns u₀ and the stats."""
+        start = time.perf_counter()
+        params = self.parameters(q, contacts, target_p, target_quat)
+        T, n_u = self._shape
+        if self._guess is None:
+            held = np.concatenate([np.zeros(n_u), params[: self._nq]])
+            n_w, n_g = self._lbx.shape[0], T * self._nq
+            self._guess = {"x0": np.tile(held, T), "lam_x0": np.zeros(n_w), "lam_g0": np.zeros(n_g)}
+        solution = self.solver(
+            **self._guess, lbx=self._lbx, ubx=self._ubx, lbg=0.0, ubg=0.0, p=params
+        )
+        solve_ms = 1e3 * (time.perf_counter() - start)
+        stats = self.solver.stats()
+        x = solution["x"].full().ravel()
+        self._guess = {
+            "x0": x,
+            "lam_x0": solution["lam_x"].full().ravel(),
+            "lam_g0": solution["lam_g"].full().ravel(),
+        }
+        controls = x.reshape(T, n_u + self._nq)[:, :n_u]
+        return IpoptPlan(
+            control=controls[0].copy(),
+            controls=controls,
+            cost=float(solution["f"]),
+            iterations=int(stats["iter_count"]),
+            status=str(stats["return_status"]),
+            solve_ms=solve_ms,
+        )
