@@ -1,8 +1,8 @@
 """The paper's MPC solved the paper's way, CasADi + IPOPT: the speed baseline of our L-BFGS.
 
 The paper's reference code states its MPC as a multiple-shooting NLP and solves it with IPOPT
-(through CasADi, at most 50 iterations, warm-started from the previous solution). The issue's
-speed target is relative to that implementation on the same machine, so
+(through CasADi, at most 50 to 500 iterations by example, warm-started from the previous
+solution). Our speed targets are relative to that implementation on the same machine, so
 ``benchmarks/ipopt_speed.py`` times :class:`IpoptMPC` beside our :class:`ContactImplicitMPC`
 on the same states in one run. The problem is our MPC's, read from the controller it is built
 on: the complementarity-free step with J̃, φ̃, K, D frozen over the horizon (as the paper's
