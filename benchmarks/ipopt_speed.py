@@ -151,7 +151,14 @@ def main(argv: list[str] | None = None) -> int:
         f"median per step: {overall['ratio_of_medians']:.2f}x (per-step ratio median "
         f"{overall['median_ratio_per_step']:.2f}x)"
     )
-    settings = {"torch": torch.__version__, "numpy": np.__version__, "threads": 1}
+    import casadi
+
+    settings = {
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "casadi": casadi.__version__,
+        "threads": 1,
+    }
     write_json(args.out / "ipopt_speed.json", {"rows": rows, "status": statuses, **settings})
     write_csv(args.out / "ipopt_speed.csv", rows)
     print(f"wrote {args.out / 'ipopt_speed.json'}, ipopt_speed.csv")
