@@ -58,7 +58,7 @@ def run_trial(task: str, obj: str, seed: int, steps: int, compile: bool = True) 
     )
     initial, target = suite.sample(env, task, obj, seed)
     env.reset(initial, target)
-    aim = tasks.aim_pose(target, env.resting_height(target[3:]), suite.criterion.position_tolerance)
+    aim = suite.aim(env, target)
     aim_p, aim_quat = torch.as_tensor(aim[:3]), torch.as_tensor(aim[3:])
     ours_ms, ipopt_ms, iterations, statuses = [], [], [], {}
     for step in range(steps):

@@ -116,7 +116,7 @@ def run_trial(
     mpc.reset()
     criterion = dataclasses.replace(suite.criterion, max_steps=config.max_steps)
     tracker = tasks.SuccessTracker(target, criterion)
-    aim = tasks.aim_pose(target, env.resting_height(target[3:]), criterion.position_tolerance)
+    aim = suite.aim(env, target)
     target_p = torch.as_tensor(aim[:3])
     target_quat = torch.as_tensor(aim[3:])
     detect_ms, solve_ms, sim_ms, iterations, found = [], [], [], [], []

@@ -81,6 +81,13 @@ class Suite:
     def objects(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys(obj for _, obj in self.pairs))
 
+    def aim(self, env, target: np.ndarray) -> np.ndarray:
+        """The ``(7,)`` pose the MPC plans toward for ``target (7,)`` in plant ``env``:
+        :func:`~torchcontact.mpc.tasks.aim_pose` with the plant's resting height and the
+        suite's position tolerance."""
+        resting = env.resting_height(target[3:])
+        return tasks.aim_pose(target, resting, self.criterion.position_tolerance)
+
     def select(self, task: str, obj: str) -> list[tuple[str, str]]:
         """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; ``obj`` may be a
         mesh path where :attr:`user_meshes`). Raises ``ValueError`` naming the bad option."""
