@@ -278,6 +278,16 @@ class ContactImplicitMPC:
         grad, cost = torch.func.grad(total, has_aux=True)(controls)
         return cost, grad
 
+    def _flat_value_and_grad(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`value_and_grad` of flat controls ``x (N, T·n_u)``; grad ``(N, T·n_u)``."""
+        f, grad = self.value_and_grad(x.unflatten(-1, (self.horizon, -1)), *args)
+        return f, grad.flatten(-2)
+
+    def _flat_differentiate(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`differentiate` of flat controls ``x (N, T·n_u)``, for a traced round."""
+        f, grad = self.differentiate(x.unflatten(-1, (self.horizon, -1)), *args)
+        return f, grad.flatten(-2)
+
     def plan(
         self, q: torch.Tensor, contacts: Contacts, target_p: torch.Tensor, target_quat: torch.Tensor
     ) -> Plan:
@@ -289,22 +299,21 @@ class ContactImplicitMPC:
         with torch.no_grad():
             rows = self.frozen_rows(q, contacts)
         shape = (self.horizon, self.system.n_robot)
-
-        def value_and_grad(x: torch.Tensor):
-            controls = x.reshape(x.shape[0], *shape)
-            with validate_args(False):
-                f, grad = self.value_and_grad(controls, q, rows, target_p, target_quat)
-            return f, grad.reshape(x.shape)
-
-        result = lbfgs_box(
-            value_and_grad,
-            self._warm.clone(),
-            self.lower,
-            self.upper,
-            memory=self.memory,
-            max_iter=self.max_iter,
-            compile_steps=self.compiled,
-        )
+        # Complementarity-free and compiled: the objective is traced into the optimizer's
+        # round, one compiled call per L-BFGS round (the QP's solve cannot be traced).
+        traced = self.compiled and not isinstance(self.model, RelaxedQP)
+        with validate_args(False):
+            result = lbfgs_box(
+                self._flat_differentiate if traced else self._flat_value_and_grad,
+                self._warm.clone(),
+                self.lower,
+                self.upper,
+                memory=self.memory,
+                max_iter=self.max_iter,
+                compile_steps=self.compiled,
+                args=(q, rows, target_p, target_quat),
+                compile_fun=traced,
+            )
         controls = result.x.reshape(shape)
         self._warm = torch.cat([controls[1:], controls[-1:]]).reshape(1, -1)
         return Plan(

@@ -154,12 +154,14 @@ def lbfgs_box(
     trial_steps: Sequence[float] = (1.0, 0.5, 0.25, 0.1),
     batched_trials: bool = True,
     compile_steps: bool = False,
+    args: tuple = (),
+    compile_fun: bool = False,
     callback: Callable[[torch.Tensor, torch.Tensor], None] | None = None,
 ) -> LbfgsResult:
     """Minimise B independent box-constrained problems with projected L-BFGS.
 
     Args:
-        fun: ``fun(x: (N, n)) -> (f: (N,), grad: (N, n))``, each row evaluated on its own. It
+        fun: ``fun(x: (N, n), *args) -> (f: (N,), grad: (N, n))``, each row evaluated on its own. It
             is called with N = B for the start and, when ``batched_trials``, with N = K·B for
             a round's K trial steps, row ``k·B + b`` being trial k of problem b (so
             ``x.view(-1, B, n)`` puts problem b in column b); with ``batched_trials=False``,
@@ -179,6 +181,14 @@ def lbfgs_box(
             running problem accepts (the best of those evaluated is taken).
         compile_steps: ``torch.compile`` the optimizer's own per-round bookkeeping (seconds to
             compile once per shape and dtype; worth it in a loop such as MPC).
+        args: extra arguments of ``fun``, passed after ``x`` (tensors, or tuples of them):
+            the data a compiled ``fun`` takes as graph inputs rather than capturing them.
+        compile_fun: with ``compile_steps`` and ``batched_trials``, trace ``fun`` into the
+            same compiled graph as the bookkeeping, so that a round is ONE compiled call
+            (the start's evaluation stays a plain call). ``fun`` must then be traceable by
+            ``torch.compile`` without graph breaks (no host syncs, no control flow on values)
+            and be the same function object from solve to solve (a method of a long-lived
+            object, not a fresh closure), or each solve compiles anew.
         callback: called after every round with the current ``x: (B, n)`` and ``f: (B,)`` (read
             only), e.g. to record the objective's history.
 
@@ -200,21 +210,33 @@ def lbfgs_box(
         curvature_eps=torch.finfo(x0.dtype).eps,
         problem_index=torch.arange(x0.shape[0], device=x0.device),
     )
+    if compile_fun and not (compile_steps and batched_trials):
+        raise ValueError("compile_fun needs compile_steps=True and batched_trials=True")
+    fun = _Bound(fun, tuple(args))
     step = _compiled_step() if compile_steps else _step
-    state = _start(fun, x0, memory, settings)
+    if compile_fun:
+        evaluate = functools.partial(_compiled_evaluate(), fun.fun, fun.args)
+        state = _start(evaluate, x0, memory, settings)
+    else:
+        state = _start(fun, x0, memory, settings)
     trials, predicted = _propose(state, settings)
 
     for _ in range(max_iter if bool(state.running.any()) else 0):
-        if batched_trials:
-            trial_f, trial_grad = _call(fun, trials)
-            n_evaluated = len(settings.steps)
-        else:
-            trials, predicted, trial_f, trial_grad, n_evaluated = _evaluate_serially(
-                fun, trials, predicted, state
+        if compile_fun:
+            state, trials, predicted, flags = _compiled_round()(
+                fun.fun, fun.args, state, trials, predicted, settings
             )
-        state, trials, predicted, flags = step(
-            state, trials, predicted, trial_f, trial_grad, n_evaluated, settings
-        )
+        else:
+            if batched_trials:
+                trial_f, trial_grad = _call(fun, trials)
+                n_evaluated = len(settings.steps)
+            else:
+                trials, predicted, trial_f, trial_grad, n_evaluated = _evaluate_serially(
+                    fun, trials, predicted, state
+                )
+            state, trials, predicted, flags = step(
+                state, trials, predicted, trial_f, trial_grad, n_evaluated, settings
+            )
         finite, keep_going = flags.tolist()
         if not finite:
             raise ValueError("fun returned NaN or Inf (f and grad must be finite in the box)")
@@ -226,6 +248,54 @@ def lbfgs_box(
     return LbfgsResult(
         state.x, state.f, state.grad, state.converged, state.pg_norm, state.n_iter, state.n_evals
     )
+
+
+class _Bound(NamedTuple):
+    """``fun`` with its extra ``args`` bound: ``x -> fun(x, *args)``."""
+
+    fun: Callable
+    args: tuple
+
+    def __call__(self, x: torch.Tensor):
+        return self.fun(x, *self.args)
+
+
+def _round(
+    fun: Callable,
+    args: tuple,
+    state: _State,
+    trials: torch.Tensor,
+    predicted: torch.Tensor,
+    settings: _Settings,
+) -> tuple[_State, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A whole round for ``compile_fun``: ``fun`` at the trials, then :func:`_step`."""
+    f, grad = _call(_Bound(fun, args), trials)
+    return _step(state, trials, predicted, f, grad, len(settings.steps), settings)
+
+
+def _evaluate(fun: Callable, args: tuple, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``fun(x, *args)`` checked, for ``compile_fun``'s start."""
+    return _call(_Bound(fun, args), x)
+
+
+TRACED_FUN_OPTIONS = {"cpp_wrapper": True}
+"""Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
+graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
+(buffer allocation and views, about a hundred of each) than in its kernels; a C++ wrapper
+cuts the fingertip MPC's round by about a quarter (README, "Speed"), at a longer first
+compilation (cached on disk like the rest)."""
+
+
+@functools.cache
+def _compiled_round() -> Callable:
+    """:func:`_round` through ``torch.compile`` (``fun`` traced into the round's graph)."""
+    return torch.compile(_round, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+
+
+@functools.cache
+def _compiled_evaluate() -> Callable:
+    """:func:`_evaluate` through ``torch.compile``: the start's evaluation of a traced ``fun``."""
+    return torch.compile(_evaluate, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
 
 
 def _start(fun: Fun, x0: torch.Tensor, memory: int, settings: _Settings) -> _State:

@@ -173,6 +173,11 @@ AIM_LIFT_FRACTION = 0.5
 """How far :func:`aim_pose` may raise a sunken target, as a fraction of the position tolerance."""
 
 
+RESTING_TOLERANCE = 1e-9
+"""[m] A target sunk by at most this counts as resting: the resting height comes from mesh
+vertices, whose rounding leaves a target placed at rest up to ~1e-17 m low."""
+
+
 def aim_pose(target_pose, resting_height: float, position_tolerance: float) -> np.ndarray:
     """The ``(7,)`` pose the MPC plans toward for ``target_pose (7,)``: raised out of its support.
 
@@ -184,7 +189,7 @@ def aim_pose(target_pose, resting_height: float, position_tolerance: float) -> n
     most :data:`AIM_LIFT_FRACTION` of ``position_tolerance`` [m], so that reaching the aim
     still counts as reaching the target; success is judged against the target itself. A
     target at or above its resting height (every sampled rotation and hand target, most
-    in-air ones) is returned unchanged.
+    in-air ones) is returned unchanged, as is one within :data:`RESTING_TOLERANCE` of it.
     """
     target = np.asarray(target_pose, dtype=float)
     if target.shape != (7,) or not np.all(np.isfinite(target)):
@@ -193,9 +198,10 @@ def aim_pose(target_pose, resting_height: float, position_tolerance: float) -> n
         raise ValueError(f"resting_height must be a finite height [m], got {resting_height!r}")
     if not position_tolerance > 0:
         raise ValueError(f"position_tolerance must be positive, got {position_tolerance!r}")
-    lift = min(resting_height - target[2], AIM_LIFT_FRACTION * position_tolerance)
+    sink = resting_height - target[2]
     aim = target.copy()
-    aim[2] += max(lift, 0.0)
+    if sink > RESTING_TOLERANCE:
+        aim[2] += min(sink, AIM_LIFT_FRACTION * position_tolerance)
     return aim
 
 

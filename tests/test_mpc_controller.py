@@ -198,6 +198,21 @@ def test_warm_start_is_the_shifted_plan(env, mpc):
     assert not mpc._warm.any()
 
 
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+@pytest.mark.parametrize("gaps", GAPS)
+def test_compiled_plan_matches_the_eager_plan(env, gaps):
+    """Compiled, the objective is traced into each L-BFGS round (one compiled call): the
+    same plans as eager, step after step of a closed loop."""
+    q, contacts = _touching_state(env)
+    options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
+    eager = fingertips_mpc("cube", **options)
+    compiled = fingertips_mpc("cube", compile=True, **options)
+    for _ in range(3):
+        expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
+        torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
+        assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
 def test_closed_loop_moves_the_cube_toward_its_target(env, mpc):
     """120 MPC steps of cube rotation (seed 1): the pose error shrinks in position and angle."""
     initial, target = tasks.sample("rotation", "cube", 1)

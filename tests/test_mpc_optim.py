@@ -206,6 +206,51 @@ def test_compiled_bookkeeping_matches_eager():
     assert compiled.n_iter.tolist() == eager.n_iter.tolist()
 
 
+def _shifted_rosenbrock(x, shift, scale):
+    """``fun`` of the Rosenbrock function of ``scale·(x − shift)``, data passed as args."""
+
+    def total(z):
+        f = rosenbrock(scale * (z - shift))
+        return f.sum(), f
+
+    grad, f = torch.func.grad(total, has_aux=True)(x)
+    return f, grad
+
+
+def test_args_reach_fun():
+    x0 = torch.zeros(1, 4, dtype=torch.float64)
+    shift, scale = torch.full((4,), 0.25, dtype=torch.float64), torch.tensor(2.0).double()
+    result = lbfgs_box(_shifted_rosenbrock, x0, args=(shift, scale), **TIGHT)
+    torch.testing.assert_close(result.x, (1 / scale + shift).expand(1, 4))
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_traced_fun_matches_eager():
+    """compile_fun traces fun into the round's compiled graph: the same iterates."""
+    x0 = torch.tensor([[-1.2, 1.0, -1.2, 1.0]], dtype=torch.float64)
+    args = (torch.full((4,), 0.1, dtype=torch.float64), torch.tensor(1.5, dtype=torch.float64))
+    eager = lbfgs_box(_shifted_rosenbrock, x0, -0.5, 0.8, max_iter=60, args=args)
+    traced = lbfgs_box(
+        _shifted_rosenbrock,
+        x0,
+        -0.5,
+        0.8,
+        max_iter=60,
+        args=args,
+        compile_steps=True,
+        compile_fun=True,
+    )
+    torch.testing.assert_close(traced.x, eager.x, rtol=0, atol=1e-12)
+    assert traced.n_iter.tolist() == eager.n_iter.tolist()
+    assert traced.n_evals.tolist() == eager.n_evals.tolist()
+
+
+@pytest.mark.parametrize("options", [{}, {"compile_steps": True, "batched_trials": False}])
+def test_traced_fun_needs_compiled_batched_rounds(options):
+    with pytest.raises(ValueError, match="compile_fun needs compile_steps=True"):
+        lbfgs_box(_fun, torch.zeros(1, 2), compile_fun=True, **options)
+
+
 def test_start_at_the_optimum_takes_no_round():
     fun = value_and_grad(rosenbrock)
     result = lbfgs_box(fun, torch.ones(2, 4, dtype=torch.float64))

@@ -218,6 +218,7 @@ def test_the_aim_rises_out_of_the_support_by_at_most_half_the_tolerance():
     target = np.array([0.05, -0.02, 0.03, 1.0, 0.0, 0.0, 0.0])
     np.testing.assert_array_equal(aim_pose(target, 0.03, 0.02), target)  # resting: unchanged
     np.testing.assert_array_equal(aim_pose(target, 0.01, 0.02), target)  # above: unchanged
+    np.testing.assert_array_equal(aim_pose(target, 0.03 + 6e-18, 0.02), target)  # rounding
     raised = aim_pose(target, 0.036, 0.02)  # sunk by 6 mm: raised onto the support
     assert raised[2] == pytest.approx(0.036)
     np.testing.assert_array_equal(np.delete(raised, 2), np.delete(target, 2))
