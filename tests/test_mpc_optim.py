@@ -225,17 +225,18 @@ def test_args_reach_fun():
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
-def test_traced_fun_matches_eager():
-    """compile_fun traces fun into the round's compiled graph: the same iterates."""
-    x0 = torch.tensor([[-1.2, 1.0, -1.2, 1.0]], dtype=torch.float64)
+@pytest.mark.parametrize("max_iter", [7, 60])  # stopped by the cap inside a call; converged
+def test_traced_fun_matches_eager(max_iter):
+    """compile_fun traces fun into the rounds' compiled graph: the same iterates."""
+    x0 = torch.tensor([[-1.2, 1.0, -1.2, 1.0], [0.3, 0.2, 0.1, 0.0]], dtype=torch.float64)
     args = (torch.full((4,), 0.1, dtype=torch.float64), torch.tensor(1.5, dtype=torch.float64))
-    eager = lbfgs_box(_shifted_rosenbrock, x0, -0.5, 0.8, max_iter=60, args=args)
+    eager = lbfgs_box(_shifted_rosenbrock, x0, -0.5, 0.8, max_iter=max_iter, args=args)
     traced = lbfgs_box(
         _shifted_rosenbrock,
         x0,
         -0.5,
         0.8,
-        max_iter=60,
+        max_iter=max_iter,
         args=args,
         compile_steps=True,
         compile_fun=True,
@@ -243,6 +244,11 @@ def test_traced_fun_matches_eager():
     torch.testing.assert_close(traced.x, eager.x, rtol=0, atol=1e-12)
     assert traced.n_iter.tolist() == eager.n_iter.tolist()
     assert traced.n_evals.tolist() == eager.n_evals.tolist()
+    assert traced.converged.tolist() == eager.converged.tolist()
+    if max_iter == 7:  # the cap stops the rounds inside the second call
+        assert eager.n_iter.max() == 7
+    else:  # both converge, in different rounds: one stays frozen while the other runs
+        assert bool(eager.converged.all()) and len(set(eager.n_iter.tolist())) == 2
 
 
 @pytest.mark.parametrize("options", [{}, {"compile_steps": True, "batched_trials": False}])
