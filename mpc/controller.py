@@ -49,6 +49,12 @@ the model itself predicts, to first order along the frozen normal rows,
 ``φ_{t+1} = φ_t + h Jⁿ v_t``: a tip the plan moves off the object stops pushing it later in the
 horizon, and one it presses in pushes harder (complementarity-free model only)."""
 
+CONTACT_BUCKET = 4
+"""The MPC pads the detected contacts with inert slots to a multiple of this many: a compiled
+plan is specialised to its number of rows, and this way scenes of 13–16 slots (most of the
+Allegro's objects) share one compiled graph instead of compiling one each, a minute or more
+apiece. Padding rows are zero, so they change no velocity."""
+
 MPC_MODELS = ("complementarity_free", "qp")
 """Contact models the MPC plans through, by name; ``"qp"`` is the relaxed, differentiable QP."""
 
@@ -295,6 +301,7 @@ class ContactImplicitMPC:
         check_shape("q", q, f"({self.layout.nq},)", q.shape == (self.layout.nq,))
         start = time.perf_counter()
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
+        contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         with torch.no_grad():
             rows = self.frozen_rows(q, contacts)

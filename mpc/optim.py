@@ -41,7 +41,9 @@ per trial).
 Cost: a round's bookkeeping is one pure function of tensors, :func:`_step`, about 170 small
 torch calls for any B. On one CPU thread that is dispatch-bound, ≈ 0.4 ms per round eager
 and ≈ 0.2 ms with ``compile_steps=True`` (``benchmarks/lbfgs_overhead.py``); a round calls
-``fun`` once.
+``fun`` once. With ``compile_fun=True`` as well, a traceable ``fun`` is compiled into the same
+graph as the bookkeeping, :data:`ROUNDS_PER_CALL` rounds per call, which is how the MPC runs:
+for small problems a compiled call's fixed cost outweighs its kernels.
 """
 
 from __future__ import annotations
@@ -309,9 +311,19 @@ cuts the fingertip MPC's round by about a quarter (README, "Speed"), at a longer
 compilation (cached on disk like the rest)."""
 
 
+TRACED_GRAPHS = 64
+"""The most graphs of the traced rounds one process keeps (Dynamo's recompile limit)."""
+
+
 @functools.cache
 def _compiled_rounds() -> Callable:
-    """:func:`_rounds` through ``torch.compile`` (``fun`` traced into the rounds' graph)."""
+    """:func:`_rounds` through ``torch.compile`` (``fun`` traced into the rounds' graph).
+
+    Each problem size, dtype and objective compiles a graph of its own, and a process that
+    sweeps MPC settings needs more than Dynamo's default 8 per function, after which it would
+    silently run the rounds eagerly: the limit is raised to :data:`TRACED_GRAPHS`."""
+    config = torch._dynamo.config
+    config.recompile_limit = max(config.recompile_limit, TRACED_GRAPHS)
     return torch.compile(_rounds, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
 
 

@@ -114,6 +114,23 @@ def test_padding_rows_are_zero_and_inactive():
     assert torch.equal(phi, c.phi.repeat_interleave(4, dim=-1))
 
 
+@pytest.mark.parametrize("batch", [(), (2, 3)])
+def test_padded_contacts_append_inert_slots(batch):
+    c = random_contacts(4, 5, batch, inactive=1)
+    padded = c.padded(7)
+    assert padded.slots == 7 and padded.batch_shape == c.batch_shape and c.padded(4) is c
+    for name in ("phi", "jac_normal", "jac_tangent", "mu", "active", "frame", "position"):
+        kept = getattr(padded, name).narrow(len(batch), 0, 4)  # the slot dimension
+        torch.testing.assert_close(kept, getattr(c, name), rtol=0, atol=0)
+    assert padded.n_active().equal(c.n_active())
+    assert torch.all(padded.phi[..., 4:] == PAD_DISTANCE)
+    jac, phi, active = padded.dual_rows(4)
+    assert torch.count_nonzero(jac[..., 16:, :]) == 0 and not active[..., 16:].any()
+    torch.testing.assert_close(jac[..., :16, :], c.dual_rows(4)[0], rtol=0, atol=0)
+    with pytest.raises(ValueError, match="slots must be an integer ≥ the 4 slots"):
+        c.padded(3)
+
+
 def test_empty_contacts():
     c = Contacts.empty(3, 6, batch=(2, 5), dtype=torch.float64)
     assert c.slots == 3 and c.nv == 6 and c.batch_shape == (2, 5)

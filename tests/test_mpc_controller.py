@@ -12,7 +12,7 @@ from torchcontact import AnitescuQP
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import integrate
 from torchcontact.mpc import tasks
-from torchcontact.mpc.controller import GAPS, ContactImplicitMPC
+from torchcontact.mpc.controller import CONTACT_BUCKET, GAPS, ContactImplicitMPC
 from torchcontact.mpc.fingertips import CONTROL_BOUND, LAYOUT, fingertip_positions, fingertips_mpc
 from torchcontact.sim import FingertipsEnv
 
@@ -211,6 +211,18 @@ def test_compiled_plan_matches_the_eager_plan(env, gaps):
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
+def test_padding_slots_do_not_change_the_plan(env):
+    """The plan pads contacts to a multiple of CONTACT_BUCKET slots; more padding changes
+    nothing but rounding."""
+    q, contacts = _touching_state(env)
+    mpc = fingertips_mpc("cube", horizon=2, max_iter=8)
+    plan = mpc.plan(q, contacts, *TARGET)
+    mpc.reset()
+    padded = mpc.plan(q, contacts.padded(contacts.slots + CONTACT_BUCKET + 1), *TARGET)
+    torch.testing.assert_close(padded.controls, plan.controls, rtol=0, atol=1e-12)
+    assert padded.iterations == plan.iterations
 
 
 def test_closed_loop_moves_the_cube_toward_its_target(env, mpc):

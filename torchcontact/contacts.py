@@ -111,6 +111,32 @@ class Contacts:
             active=torch.zeros((*batch, slots), dtype=torch.bool, device=device),
         )
 
+    def padded(self, slots: int) -> Contacts:
+        """These contacts with padding slots appended up to ``slots`` in all (inactive, at
+        ``PAD_DISTANCE``, zero Jacobians: they add zero rows to J̃, and no force)."""
+        if isinstance(slots, bool) or not isinstance(slots, int) or slots < self.slots:
+            raise ValueError(f"slots must be an integer ≥ the {self.slots} slots, got {slots!r}")
+        if slots == self.slots:
+            return self
+        pad = Contacts.empty(
+            slots - self.slots, self.nv, self.batch_shape, self.phi.dtype, self.phi.device
+        )
+        optional = {}
+        for name, shape in (("frame", (3, 3)), ("position", (3,))):
+            value = getattr(self, name)
+            if value is not None:
+                filler = value.new_zeros(*self.batch_shape, slots - self.slots, *shape)
+                optional[name] = torch.cat([value, filler], dim=-1 - len(shape))
+        return Contacts(
+            **{
+                name: torch.cat(
+                    [getattr(self, name), getattr(pad, name)], dim=len(self.batch_shape)
+                )
+                for name in ("phi", "jac_normal", "jac_tangent", "mu", "active")
+            },
+            **optional,
+        )
+
     @property
     def slots(self) -> int:
         """Number of slots ``nc`` (active or padding)."""
