@@ -307,7 +307,7 @@ class ContactImplicitMPC:
             rows = self.frozen_rows(q, contacts)
         shape = (self.horizon, self.system.n_robot)
         # Complementarity-free and compiled: the objective is traced into the optimizer's
-        # round, one compiled call per L-BFGS round (the QP's solve cannot be traced).
+        # rounds, several L-BFGS rounds per compiled call (the QP's solve cannot be traced).
         traced = self.compiled and not isinstance(self.model, RelaxedQP)
         with validate_args(False):
             result = lbfgs_box(

@@ -163,12 +163,12 @@ def lbfgs_box(
     """Minimise B independent box-constrained problems with projected L-BFGS.
 
     Args:
-        fun: ``fun(x: (N, n), *args) -> (f: (N,), grad: (N, n))``, each row evaluated on its own. It
-            is called with N = B for the start and, when ``batched_trials``, with N = K·B for
-            a round's K trial steps, row ``k·B + b`` being trial k of problem b (so
-            ``x.view(-1, B, n)`` puts problem b in column b); with ``batched_trials=False``,
-            N = B always. Problems that have stopped are still passed (frozen), to keep shapes
-            fixed.
+        fun: ``fun(x: (N, n), *args) -> (f: (N,), grad: (N, n))``, each row evaluated on its
+            own. It is called with N = B for the start and, when ``batched_trials``, with
+            N = K·B for a round's K trial steps, row ``k·B + b`` being trial k of problem b
+            (so ``x.view(-1, B, n)`` puts problem b in column b); with
+            ``batched_trials=False``, N = B always. Problems that have stopped are still
+            passed (frozen), to keep shapes fixed.
         x0: (B, n) start; projected onto the box first.
         lower, upper: bounds broadcastable to (B, n), scalars, or None (unbounded on that side);
             ``lower = upper`` fixes a variable.
@@ -270,7 +270,8 @@ ROUNDS_PER_CALL = 4
 """Rounds one compiled call runs with ``compile_fun``. A traced objective's tensors are tiny,
 so a call costs mostly its fixed overhead (guards, argument flattening, the host sync of
 the flags), which several rounds share: 4 rounds per call cut the fingertip MPC's solve by
-about a fifth against 1 (README, "Speed"), at twice the compile time. A problem that stops
+about a fifth against 1 (README, "Three-fingertip MPC", session 12), at twice the compile
+time. A problem that stops
 within a call stays frozen for the call's remaining rounds (the iterates are those of one
 round per call); the call's ``budget`` stops every problem after ``max_iter`` rounds."""
 
@@ -307,30 +308,35 @@ TRACED_FUN_OPTIONS = {"cpp_wrapper": True}
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
 (buffer allocation and views, about a hundred of each) than in its kernels; a C++ wrapper
-cuts the fingertip MPC's round by about a quarter (README, "Speed"), at a longer first
-compilation (cached on disk like the rest)."""
+cuts the fingertip MPC's round by about a quarter (README, "Three-fingertip MPC", session
+12), at a longer first compilation (cached on disk like the rest)."""
 
 
 TRACED_GRAPHS = 64
 """The most graphs of the traced rounds one process keeps (Dynamo's recompile limit)."""
 
 
-@functools.cache
-def _compiled_rounds() -> Callable:
-    """:func:`_rounds` through ``torch.compile`` (``fun`` traced into the rounds' graph).
+def _traced(function: Callable) -> Callable:
+    """``function`` through ``torch.compile`` for ``compile_fun``.
 
     Each problem size, dtype and objective compiles a graph of its own, and a process that
     sweeps MPC settings needs more than Dynamo's default 8 per function, after which it would
-    silently run the rounds eagerly: the limit is raised to :data:`TRACED_GRAPHS`."""
+    silently run eagerly: the limit is raised to :data:`TRACED_GRAPHS`."""
     config = torch._dynamo.config
     config.recompile_limit = max(config.recompile_limit, TRACED_GRAPHS)
-    return torch.compile(_rounds, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+    return torch.compile(function, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+
+
+@functools.cache
+def _compiled_rounds() -> Callable:
+    """:func:`_rounds` compiled (``fun`` traced into the rounds' graph)."""
+    return _traced(_rounds)
 
 
 @functools.cache
 def _compiled_evaluate() -> Callable:
-    """:func:`_evaluate` through ``torch.compile``: the start's evaluation of a traced ``fun``."""
-    return torch.compile(_evaluate, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+    """:func:`_evaluate` compiled: the start's evaluation of a traced ``fun``."""
+    return _traced(_evaluate)
 
 
 def _start(fun: Fun, x0: torch.Tensor, memory: int, settings: _Settings) -> _State:
