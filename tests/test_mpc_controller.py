@@ -201,8 +201,8 @@ def test_warm_start_is_the_shifted_plan(env, mpc):
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
 @pytest.mark.parametrize("gaps", GAPS)
 def test_compiled_plan_matches_the_eager_plan(env, gaps):
-    """Compiled, the objective is traced into each L-BFGS round (one compiled call): the
-    same plans as eager, step after step of a closed loop."""
+    """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call):
+    the same plans as eager, plan after warm-started plan."""
     q, contacts = _touching_state(env)
     options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
     eager = fingertips_mpc("cube", **options)
