@@ -218,11 +218,8 @@ def lbfgs_box(
         raise ValueError("compile_fun needs compile_steps=True and batched_trials=True")
     fun = _Bound(fun, tuple(args))
     step = _compiled_step() if compile_steps else _step
-    if compile_fun:
-        evaluate = functools.partial(_compiled_evaluate(), fun.fun, fun.args)
-        state = _start(evaluate, x0, memory, settings)
-    else:
-        state = _start(fun, x0, memory, settings)
+    start_fun = functools.partial(_compiled_evaluate(), fun.fun, fun.args) if compile_fun else fun
+    state = _start(start_fun, x0, memory, settings)
     trials, predicted = _propose(state, settings)
 
     per_call = ROUNDS_PER_CALL if compile_fun else 1
@@ -271,9 +268,9 @@ ROUNDS_PER_CALL = 4
 so a call costs mostly its fixed overhead (guards, argument flattening, the host sync of
 the flags), which several rounds share: 4 rounds per call cut the fingertip MPC's solve by
 about a fifth against 1 (README, "Three-fingertip MPC", session 12), at twice the compile
-time. A problem that stops
-within a call stays frozen for the call's remaining rounds (the iterates are those of one
-round per call); the call's ``budget`` stops every problem after ``max_iter`` rounds."""
+time. A problem that stops within a call stays frozen for the call's remaining rounds (the
+iterates are those of one round per call); the call's ``budget`` stops every problem after
+``max_iter`` rounds."""
 
 
 def _rounds(
@@ -300,8 +297,8 @@ def _rounds(
 
 
 def _evaluate(fun: Callable, args: tuple, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``fun(x, *args)`` checked, for ``compile_fun``'s start."""
-    return _call(_Bound(fun, args), x)
+    """``fun(x, *args)``, for ``compile_fun``'s start (:func:`_start` checks the outputs)."""
+    return fun(x, *args)
 
 
 TRACED_FUN_OPTIONS = {"cpp_wrapper": True}
