@@ -2,19 +2,22 @@
 
     python benchmarks/ipopt_speed.py                       # nine fingertip pairs, seeds 0-1
     python benchmarks/ipopt_speed.py --pairs flip:foam_brick --seeds 5 --steps 300
+    python benchmarks/ipopt_speed.py --env allegro --seeds 1 --steps 100   # 17 objects
 
 The issue's speed target is relative to the paper's implementation on the same machine. This
 runs both in one process on one thread: each trial is driven closed-loop by our MPC (the
-``balanced`` preset, as ``torchcontact run fingertips``), and at every one of its first
-``--steps`` states :class:`~torchcontact.mpc.ipopt_baseline.IpoptMPC` solves the paper's MPC
-problem too (frozen gaps, float64, the tips' heights bounded as the reference bounds them,
-IPOPT at most 100 iterations, warm-started from its own previous solution). Both times
-include the frozen rows' extraction; detection and simulation are not timed. The first 5
-steps of each trial are left out (compilation, IPOPT's cold start).
+``balanced`` preset, as ``torchcontact run ENV``), and at every one of its first ``--steps``
+states :class:`~torchcontact.mpc.ipopt_baseline.IpoptMPC` solves the paper's MPC problem too,
+stated twice: our lean NLP and the reference code's own formulation (``FORMULATIONS``); each
+is frozen gaps, float64, warm-started from its own previous solution (the fingertips' IPOPT at
+most 100 iterations with the tips' heights bounded as the reference bounds them, the hands'
+at most 50, the reference's cap, with their fingertips from CasADi forward kinematics of the
+same MJCF). All times include the frozen rows' extraction; detection and simulation are not
+timed. The first 5 steps of each trial are left out (compilation, IPOPT's cold start).
 
-Prints per-pair and overall medians and their ratio, and writes JSON and CSV (default under
-``results/ipopt_speed/``); each finished trial is written at once, and a rerun with the same
-``--out`` skips it.
+Prints per-pair and overall medians and their ratios, and writes JSON and CSV (default under
+``results/ipopt_speed/``, ``results/ipopt_speed_ENV/`` for a hand); each finished trial is
+written at once, and a rerun with the same ``--out`` skips it.
 """
 
 import os
@@ -33,7 +36,11 @@ from tqdm.auto import tqdm  # noqa: E402
 
 from torchcontact.mpc import tasks  # noqa: E402
 from torchcontact.mpc.fingertips import fingertips_mpc  # noqa: E402
-from torchcontact.mpc.ipopt_baseline import IpoptMPC  # noqa: E402
+from torchcontact.mpc.ipopt_baseline import (  # noqa: E402
+    FORMULATIONS,
+    REFERENCE_MAX_ITER,
+    IpoptMPC,
+)
 from torchcontact.mpc.presets import preset_options  # noqa: E402
 from torchcontact.mpc.suites import SUITES  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
@@ -44,116 +51,151 @@ FINGERTIPS_MAX_ITER = 100
 """IPOPT's cap here: the reference's fingertip MPCs use 100 (foam brick) and 500 (cube)."""
 
 
-def run_trial(task: str, obj: str, seed: int, steps: int, compile: bool = True) -> dict:
-    """Drive one trial with our MPC for ``steps`` steps, timing both solvers at each state."""
-    suite = SUITES["fingertips"]
+def run_trial(
+    task: str, obj: str, seed: int, steps: int, compile: bool = True, env_name: str = "fingertips"
+) -> dict:
+    """Drive one trial of ``env_name`` with our MPC for ``steps`` steps, timing it and IPOPT
+    on both NLP formulations (:data:`~torchcontact.mpc.ipopt_baseline.FORMULATIONS`) at each
+    state."""
+    suite = SUITES[env_name]
     env = suite.make_env(obj)
-    ours = fingertips_mpc(obj, **{**preset_options("fingertips"), "compile": compile})
-    high = tasks.OBJECT_SETTINGS[obj].tip_height_max
-    baseline = IpoptMPC(
-        fingertips_mpc(obj, compile=False),
-        n_rows=env.detector.slots * 4,
-        max_iter=FINGERTIPS_MAX_ITER,
-        tip_height=(0.0, math.inf if high is None else high),
-    )
+    options = {**preset_options(env_name), "compile": compile}
+    if env_name == "fingertips":
+        ours = fingertips_mpc(obj, **options)
+        problem = fingertips_mpc(obj, compile=False)
+        high = tasks.OBJECT_SETTINGS[obj].tip_height_max
+        settings = {
+            "max_iter": FINGERTIPS_MAX_ITER,
+            "tip_height": (0.0, math.inf if high is None else high),
+        }
+    else:
+        ours = suite.make_mpc(obj, None, plant=env, **options)
+        problem = suite.make_mpc(obj, None, plant=env, compile=False)
+        settings = {"max_iter": REFERENCE_MAX_ITER}
+    baselines = {
+        name: IpoptMPC(problem, env.detector.slots * 4, formulation=name, **settings)
+        for name in FORMULATIONS
+    }
     initial, target = suite.sample(env, task, obj, seed)
     env.reset(initial, target)
     aim = suite.aim(env, target)
     aim_p, aim_quat = torch.as_tensor(aim[:3]), torch.as_tensor(aim[3:])
-    ours_ms, ipopt_ms, iterations, statuses = [], [], [], {}
+    ours_ms = []
+    ipopt = {name: {"ms": [], "iterations": [], "status": {}} for name in FORMULATIONS}
     for step in range(steps):
         contacts = env.contacts(torch.float64)
         q = torch.as_tensor(env.state())
         plan = ours.plan(q, contacts, aim_p, aim_quat)
-        reference = baseline.plan(q, contacts, aim_p, aim_quat)
+        solves = {name: b.plan(q, contacts, aim_p, aim_quat) for name, b in baselines.items()}
         env.step(plan.control.numpy())
-        if step >= WARMUP_STEPS:
-            ours_ms.append(plan.solve_ms)
-            ipopt_ms.append(reference.solve_ms)
-            iterations.append(reference.iterations)
-            statuses[reference.status] = statuses.get(reference.status, 0) + 1
+        if step < WARMUP_STEPS:
+            continue
+        ours_ms.append(plan.solve_ms)
+        for name, solve in solves.items():
+            ipopt[name]["ms"].append(solve.solve_ms)
+            ipopt[name]["iterations"].append(solve.iterations)
+            statuses = ipopt[name]["status"]
+            statuses[solve.status] = statuses.get(solve.status, 0) + 1
     return {
+        "env": env_name,
         "task": task,
         "object": obj,
         "seed": seed,
         "steps": steps,
         "ours_ms": ours_ms,
-        "ipopt_ms": ipopt_ms,
-        "ipopt_iterations": iterations,
-        "ipopt_status": statuses,
+        "ipopt": ipopt,
     }
 
 
 def summarize(records: list[dict]) -> dict:
-    """Medians of both solvers' times over ``records``' steps and their ratios."""
+    """Medians of our and each IPOPT formulation's times over ``records``' steps, their
+    ratios, and IPOPT's median iterations."""
     ours = [t for r in records for t in r["ours_ms"]]
-    ipopt = [t for r in records for t in r["ipopt_ms"]]
-    ratios = [b / a for r in records for a, b in zip(r["ours_ms"], r["ipopt_ms"], strict=True)]
-    return {
-        "steps": len(ours),
-        "ours_ms_median": statistics.median(ours),
-        "ipopt_ms_median": statistics.median(ipopt),
-        "ratio_of_medians": statistics.median(ipopt) / statistics.median(ours),
-        "median_ratio_per_step": statistics.median(ratios),
-        "ipopt_iterations_median": statistics.median(
-            [i for r in records for i in r["ipopt_iterations"]]
-        ),
-    }
+    row = {"steps": len(ours), "ours_ms_median": statistics.median(ours)}
+    for name in FORMULATIONS:
+        times = [t for r in records for t in r["ipopt"][name]["ms"]]
+        ratios = [
+            b / a
+            for r in records
+            for a, b in zip(r["ours_ms"], r["ipopt"][name]["ms"], strict=True)
+        ]
+        row[f"ipopt_{name}_ms_median"] = statistics.median(times)
+        row[f"{name}_ratio_of_medians"] = statistics.median(times) / statistics.median(ours)
+        row[f"{name}_median_ratio_per_step"] = statistics.median(ratios)
+        row[f"ipopt_{name}_iterations_median"] = statistics.median(
+            [i for r in records for i in r["ipopt"][name]["iterations"]]
+        )
+    return row
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", choices=tuple(SUITES), default="fingertips")
     parser.add_argument(
         "--pairs", default="all", help="'all' or comma-separated task:object, e.g. flip:cube"
     )
     parser.add_argument("--seeds", type=int, default=2, help="trials 0…seeds−1 per pair")
     parser.add_argument("--steps", type=int, default=200, help="steps timed per trial")
-    parser.add_argument("--out", type=Path, default=Path("results/ipopt_speed"))
+    parser.add_argument("--out", type=Path, help="default results/ipopt_speed[_ENV]")
     parser.add_argument("--no-compile", action="store_true", help="our objective eager")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.seeds < 1 or args.steps <= WARMUP_STEPS:
         parser.error(f"--seeds must be ≥ 1 and --steps > {WARMUP_STEPS}")
-    pairs = list(tasks.PAPER_PAIRS)
+    known = SUITES[args.env].pairs
+    pairs = list(known)
     if args.pairs != "all":
         pairs = [tuple(pair.split(":")) for pair in args.pairs.split(",")]
-        unknown = [pair for pair in pairs if pair not in tasks.PAPER_PAIRS]
+        unknown = [pair for pair in pairs if pair not in known]
         if unknown:
-            parser.error(f"--pairs must be task:object pairs of {tasks.PAPER_PAIRS}: {unknown}")
+            parser.error(f"--pairs must be task:object pairs of {known}: {unknown}")
+    if args.out is None:
+        suffix = "" if args.env == "fingertips" else f"_{args.env}"
+        args.out = Path(f"results/ipopt_speed{suffix}")
 
     jobs = [(task, obj, seed) for task, obj in pairs for seed in range(args.seeds)]
     records = []
     for task, obj, seed in tqdm(jobs, desc="trials", disable=args.no_progress):
         path = args.out / "trials" / f"{task}_{obj}_seed{seed}_steps{args.steps}.json"
         if not path.exists():
-            write_json(path, run_trial(task, obj, seed, args.steps, not args.no_compile))
+            record = run_trial(task, obj, seed, args.steps, not args.no_compile, args.env)
+            write_json(path, record)
         records.append(read_json(path))
 
     rows = []
-    print(f"{'pair':>22} {'steps':>6} {'ours ms':>8} {'IPOPT ms':>9} {'ratio':>6} {'IPOPT it':>9}")
+    print(
+        f"{'pair':>24} {'steps':>6} {'ours ms':>8} {'lean ms':>8} {'ratio':>6} {'it':>3}"
+        f" {'ref ms':>8} {'ratio':>6} {'it':>3}"
+    )
     for task, obj in [*pairs, ("all", "")]:
         chosen = [r for r in records if task == "all" or (r["task"], r["object"]) == (task, obj)]
         row = {"task": task, "object": obj, **summarize(chosen)}
         rows.append(row)
-        print(
-            f"{task + ' ' + obj:>22} {row['steps']:>6} {row['ours_ms_median']:>8.1f} "
-            f"{row['ipopt_ms_median']:>9.1f} {row['ratio_of_medians']:>6.2f} "
-            f"{row['ipopt_iterations_median']:>9.0f}"
+        columns = "".join(
+            f" {row[f'ipopt_{name}_ms_median']:>8.1f} {row[f'{name}_ratio_of_medians']:>6.2f}"
+            f" {row[f'ipopt_{name}_iterations_median']:>3.0f}"
+            for name in FORMULATIONS
         )
-    statuses: dict[str, int] = {}
+        print(f"{task + ' ' + obj:>24} {row['steps']:>6} {row['ours_ms_median']:>8.1f}{columns}")
+    statuses: dict[str, dict[str, int]] = {name: {} for name in FORMULATIONS}
     for record in records:
-        for status, count in record["ipopt_status"].items():
-            statuses[status] = statuses.get(status, 0) + count
-    print("IPOPT return status:", ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
+        for name in FORMULATIONS:
+            for status, count in record["ipopt"][name]["status"].items():
+                statuses[name][status] = statuses[name].get(status, 0) + count
     overall = rows[-1]
-    print(
-        f"ours {overall['ours_ms_median']:.1f} ms, IPOPT {overall['ipopt_ms_median']:.1f} ms "
-        f"median per step: {overall['ratio_of_medians']:.2f}x (per-step ratio median "
-        f"{overall['median_ratio_per_step']:.2f}x)"
-    )
+    for name in FORMULATIONS:
+        listed = ", ".join(f"{k} {v}" for k, v in sorted(statuses[name].items()))
+        print(f"IPOPT ({name}) return status: {listed}")
+        print(
+            f"ours {overall['ours_ms_median']:.1f} ms, IPOPT ({name}) "
+            f"{overall[f'ipopt_{name}_ms_median']:.1f} ms median per step: "
+            f"{overall[f'{name}_ratio_of_medians']:.2f}x (per-step ratio median "
+            f"{overall[f'{name}_median_ratio_per_step']:.2f}x)"
+        )
     import casadi
 
     settings = {
+        "env": args.env,
         "torch": torch.__version__,
         "numpy": np.__version__,
         "casadi": casadi.__version__,

@@ -18,8 +18,9 @@ Algorithm 1), the same cost terms and weights, the same control box. As in the p
 - IPOPT with its defaults (MUMPS), a cap on its iterations, given the previous primal and
   dual solution as its start.
 
-Only the fingertips are supported: their tips are coordinates of q (the hands' would need
-their forward kinematics written in CasADi).
+The fingertips' tips are coordinates of q; the hands' come from their MJCF through
+:func:`~torchcontact.mpc.casadi_kinematics.casadi_fingertips`, as the paper's code writes its
+hands' forward kinematics in CasADi.
 """
 
 from __future__ import annotations
@@ -31,12 +32,26 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import Contacts
+from torchcontact.model import RelaxedQP
+from torchcontact.mpc.casadi_kinematics import casadi_fingertips
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.fingertips import LAYOUT, fingertip_positions
+from torchcontact.mpc.hands import JointFingertips
 from torchcontact.validation import check_shape
 
 REFERENCE_MAX_ITER = 50
 """IPOPT's iteration cap in the paper's reference code."""
+
+FORMULATIONS = ("lean", "reference")
+"""How :class:`IpoptMPC` writes the NLP: ``"lean"``, our statement (Q⁻¹b first, diagonal
+scalings, an overflow-safe softplus, only the tips' heights bounded); ``"reference"``, as the
+paper's code writes it (dense Q⁻¹ and the products (J̃Q⁻¹)b and (Q⁻¹J̃ᵀ)λ, log(1 + exp(γx))/γ,
+and every state variable boxed, see :data:`REFERENCE_BOUND`). Same problem and optimum; the
+expression graphs IPOPT evaluates differ in size, and finite bounds on all states add
+barrier terms."""
+
+REFERENCE_BOUND = 1e7
+"""The reference's box on the states it does not otherwise bound (finite, so IPOPT keeps it)."""
 
 
 @dataclass(frozen=True)
@@ -71,7 +86,7 @@ def _body_rate_matrix(quat):
 
 
 class IpoptMPC:
-    """The MPC problem of ``mpc`` (fingertips) as a multiple-shooting NLP solved by IPOPT.
+    """The MPC problem of ``mpc`` (fingertips or a hand) as a multiple-shooting NLP solved by IPOPT.
 
     Args:
         mpc: the controller whose model, system, cost, box, horizon and h are solved; its
@@ -81,7 +96,11 @@ class IpoptMPC:
             the foam brick, 500 for the cube).
         tip_height: ``(low, high)`` [m] bounds on the planned tips' heights, as the reference's
             fingertip MPCs bound their states (z ≥ 0, and ≤ 0.1 m for the foam brick and the
-            stick); None leaves the states unbounded.
+            stick); None leaves the states unbounded (fingertips only).
+        formulation: one of :data:`FORMULATIONS`. ``"reference"`` also boxes every state as
+            the reference does: fingertips' x, y within ±100 m and heights within
+            ``tip_height`` (else [0, 100] m), hands' object within ±0.99 m and above z = 0,
+            the rest within ±:data:`REFERENCE_BOUND`.
     """
 
     def __init__(
@@ -90,19 +109,32 @@ class IpoptMPC:
         n_rows: int,
         max_iter: int = REFERENCE_MAX_ITER,
         tip_height: tuple[float, float] | None = None,
+        formulation: str = "lean",
     ):
         import casadi as cs
 
+        if formulation not in FORMULATIONS:
+            raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+
+        if isinstance(mpc.model, RelaxedQP):
+            raise ValueError("the IPOPT baseline states the complementarity-free model, not qp")
         if mpc.gaps != "frozen":
             raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
-        if mpc.layout.joints != LAYOUT.joints or mpc.fingertips is not fingertip_positions:
-            raise ValueError("the IPOPT baseline supports the three fingertips' MPC only")
+        hand = isinstance(mpc.fingertips, JointFingertips)
+        robot_joints = mpc.layout.joints[1:]
+        if not (
+            (mpc.layout.joints == LAYOUT.joints and mpc.fingertips is fingertip_positions)
+            or (hand and mpc.layout.joints[0] == "free" and set(robot_joints) == {"hinge"})
+        ):
+            raise ValueError("the IPOPT baseline supports the fingertips' and hands' MPCs only")
+        if hand and tip_height is not None:
+            raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")
         if not isinstance(n_rows, int) or n_rows < 1:
             raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
         if not isinstance(max_iter, int) or max_iter < 1:
             raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
         self.mpc, self.n_rows = mpc, n_rows
-        nq, nv, n_u, T = 16, 15, mpc.system.n_robot, mpc.horizon
+        nq, nv, n_u, T = mpc.layout.nq, mpc.layout.nv, mpc.system.n_robot, mpc.horizon
         h, cost, gamma = mpc.h, mpc.cost, mpc.model.gamma
         metric = mpc.system.metric().double().numpy()
         object_force = mpc.system.object_force.double().numpy()
@@ -113,17 +145,40 @@ class IpoptMPC:
         phi, K, D = (cs.SX.sym(name, n_rows) for name in ("phi", "K", "D"))
         jac = cs.SX.sym("jac", n_rows, nv)
 
-        def step(q, u):
+        def lean_velocity(u):
             b = cs.vertcat(cs.DM(object_force), cs.DM(stiffness) * u)
             free = b / cs.DM(metric)  # Q⁻¹b
             gap_change = cs.mtimes(jac, free)
             lam = _softplus(-K * (gap_change + phi) - D * gap_change / h, gamma)
-            v = (free + cs.mtimes(jac.T, lam) / cs.DM(metric)) / h
+            return (free + cs.mtimes(jac.T, lam) / cs.DM(metric)) / h
+
+        def reference_velocity(u):  # the same v, written as the paper's code writes it
+            inverse = cs.DM(np.linalg.inv(np.diag(metric)))
+            b = cs.vertcat(cs.DM(object_force), cs.mtimes(cs.DM(np.diag(stiffness)), u))
+            pressure = -K * (cs.mtimes(cs.mtimes(jac, inverse), b) + phi)
+            pressure = pressure - D * cs.mtimes(cs.mtimes(jac, inverse), b) / h
+            lam = cs.log(1 + cs.exp(gamma * pressure)) / gamma
+            return cs.mtimes(inverse, b) / h + cs.mtimes(cs.mtimes(inverse, jac.T), lam) / h
+
+        velocity = lean_velocity if formulation == "lean" else reference_velocity
+
+        def step(q, u):
+            v = velocity(u)
             quat = q[3:7] + 0.5 * h * cs.mtimes(_body_rate_matrix(q[3:7]).T, v[3:6])
             return cs.vertcat(q[0:3] + h * v[0:3], quat, q[7:] + h * v[6:])
 
-        def tips(q):
-            return [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
+        if hand:
+            kinematics = mpc.fingertips.kinematics
+            forward = casadi_fingertips(kinematics.mjcf, kinematics.tips)
+
+            def tips(q):
+                points = forward(q[7:])
+                return [points[i, :].T for i in range(len(kinematics.tips))]
+
+        else:
+
+            def tips(q):
+                return [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
 
         def rotation(quat):  # R(q/‖q‖) of a quaternion (w, x, y, z), as the torch cost's
             w, x, y, z = quat[0], quat[1], quat[2], quat[3]
@@ -181,18 +236,25 @@ class IpoptMPC:
         self.solver = cs.nlpsol("mpc", "ipopt", nlp, options)
         q, u = cs.SX.sym("q", nq), cs.SX.sym("u", n_u)
         self.step_function = cs.Function("step", [q, u, rows], [step(q, u)])
-        """``(q (16,), u (9,), rows) ↦ q⁺``: the NLP's model step; ``rows`` are the parameter
+        """``(q (nq,), u (n_u,), rows) ↦ q⁺``: the NLP's model step; ``rows`` are the parameter
         vector's entries after the target (:meth:`parameters`)."""
         lower = mpc.lower.reshape(T, n_u).double().numpy()
         upper = mpc.upper.reshape(T, n_u).double().numpy()
-        state_low, state_high = np.full(nq, -np.inf), np.full(nq, np.inf)
+        unbounded = np.inf if formulation == "lean" else REFERENCE_BOUND
+        state_low, state_high = np.full(nq, -unbounded), np.full(nq, unbounded)
+        if formulation == "reference" and hand:
+            state_low[:3], state_high[:3] = (-0.99, -0.99, 0.0), (0.99, 0.99, 0.99)
+        elif formulation == "reference":
+            state_low[7:], state_high[7:] = -100.0, 100.0
+            state_low[9::3] = 0.0
         if tip_height is not None:
             low, high = tip_height
             if not low < high:
                 raise ValueError(
                     f"tip_height must be (low, high) with low < high, got {tip_height}"
                 )
-            state_low[9::3], state_high[9::3] = low, high  # the tips' z: q[9], q[12], q[15]
+            state_low[9::3] = low  # the tips' z: q[9], q[12], q[15]
+            state_high[9::3] = min(high, state_high[9])
         self._lbx = np.concatenate([np.concatenate([lo, state_low]) for lo in lower])
         self._ubx = np.concatenate([np.concatenate([hi, state_high]) for hi in upper])
         self._shape, self._nq = (T, n_u), nq
@@ -205,9 +267,9 @@ class IpoptMPC:
         self._guess = None
 
     def parameters(self, q, contacts: Contacts, target_p, target_quat) -> np.ndarray:
-        """The NLP's parameter vector at state ``q (16,)``: q₀, the target and the frozen rows."""
+        """The NLP's parameter vector at state ``q (nq,)``: q₀, the target and the frozen rows."""
         q = torch.as_tensor(q, dtype=torch.float64)
-        check_shape("q", q, "(16,)", q.shape == (16,))
+        check_shape("q", q, f"({self._nq},)", q.shape == (self._nq,))
         with torch.no_grad():
             jac, phi, K, D = self.mpc.frozen_rows(q.to(self.mpc.dtype), contacts.to(self.mpc.dtype))
         if phi.shape[-1] != self.n_rows:
@@ -226,7 +288,7 @@ class IpoptMPC:
         return torch.cat([x.double().reshape(-1) for x in pieces]).numpy()
 
     def plan(self, q, contacts: Contacts, target_p, target_quat) -> IpoptPlan:
-        """Solve at state ``q (16,)`` from the previous solution; returns u₀ and the stats."""
+        """Solve at state ``q (nq,)`` from the previous solution; returns u₀ and the stats."""
         start = time.perf_counter()
         params = self.parameters(q, contacts, target_p, target_quat)
         T, n_u = self._shape

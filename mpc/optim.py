@@ -301,12 +301,24 @@ def _evaluate(fun: Callable, args: tuple, x: torch.Tensor) -> tuple[torch.Tensor
     return fun(x, *args)
 
 
-TRACED_FUN_OPTIONS = {"cpp_wrapper": True}
+TRACED_FUN_OPTIONS = {"cpp_wrapper": True, "post_grad_fusion_options": {"decompose_mm_pass": {}}}
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
 (buffer allocation and views, about a hundred of each) than in its kernels; a C++ wrapper
 cuts the fingertip MPC's round by about a quarter (README, "Three-fingertip MPC", session
-12), at a longer first compilation (cached on disk like the rest)."""
+12), at a longer first compilation (cached on disk like the rest). Inductor's
+``decompose_mm_pass`` writes small matrix products as pointwise products and sums, which fuse
+with their neighbours, instead of external BLAS calls of a few µs each: pytorch-kinematics'
+4×4 transforms are about 70 such calls per TriFinger round (:data:`SMALL_PRODUCTS`)."""
+
+SMALL_PRODUCTS = {
+    "cpu_max_first_dimension_decomposition": 4096,
+    "cpu_max_other_dimension_decomposition": 64,
+}
+"""Which CPU products ``decompose_mm_pass`` rewrites: batched products of at most 4096
+matrices, and 2-D ones whose sides are all at most 64 (Inductor's defaults, 1 and 2048, leave
+batched products alone). Set when the first traced graph compiles; other graphs do not run
+the pass."""
 
 
 TRACED_GRAPHS = 64
@@ -321,7 +333,20 @@ def _traced(function: Callable) -> Callable:
     silently run eagerly: the limit is raised to :data:`TRACED_GRAPHS`."""
     config = torch._dynamo.config
     config.recompile_limit = max(config.recompile_limit, TRACED_GRAPHS)
+    _decompose_small_products()
     return torch.compile(function, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+
+
+@functools.cache
+def _decompose_small_products() -> None:
+    """Apply :data:`SMALL_PRODUCTS`: the pass reads its CPU thresholds from module globals
+    (set from Inductor's config when it is imported), so they are set there."""
+    from torch._inductor.fx_passes import decompose_mem_bound_mm as decompose
+
+    for name, value in SMALL_PRODUCTS.items():
+        if not hasattr(decompose, name):  # a torch whose pass changed: keep its defaults
+            return
+        setattr(decompose, name, value)
 
 
 @functools.cache

@@ -251,6 +251,49 @@ def test_traced_fun_matches_eager(max_iter):
         assert bool(eager.converged.all()) and len(set(eager.n_iter.tolist())) == 2
 
 
+def _rotated_rosenbrock(x, rotations):
+    """``fun`` of the Rosenbrock function of ``x`` turned by batched 3×3 ``rotations``: the
+    small batched products pytorch-kinematics' transforms make."""
+
+    def total(z):
+        turned = torch.bmm(rotations.expand(z.shape[0], -1, -1), z.unsqueeze(-1)).squeeze(-1)
+        f = rosenbrock(turned)
+        return f.sum(), f
+
+    grad, f = torch.func.grad(total, has_aux=True)(x)
+    return f, grad
+
+
+def _products(run) -> list:
+    """Input shapes of the ``aten::bmm`` calls ``run()`` makes."""
+    with torch.profiler.profile(
+        activities=[torch.profiler.ProfilerActivity.CPU], record_shapes=True
+    ) as profile:
+        run()
+    return [event.input_shapes for event in profile.events() if event.name == "aten::bmm"]
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_traced_rounds_fuse_small_batched_products():
+    """The traced graph writes the objective's bmm (its 4 trial points' 3×3 turns) as fused
+    pointwise products: the eager rounds call it, the traced ones do not."""
+    x0 = torch.tensor([[0.5, 0.2, -0.3]], dtype=torch.float64)
+    angle = torch.tensor(0.3, dtype=torch.float64)
+    c, s = torch.cos(angle), torch.sin(angle)
+    rotations = torch.stack([torch.stack([c, -s, 0 * c]), torch.stack([s, c, 0 * c])])
+    rotations = torch.cat([rotations, torch.tensor([[0.0, 0.0, 1.0]]).double()])[None]
+    options = dict(max_iter=20, args=(rotations,), compile_steps=True)
+    trials = [[4, 3, 3], [4, 3, 1]]  # the objective's product over the 4 trial points
+
+    def solve(traced):
+        return lbfgs_box(_rotated_rosenbrock, x0, -2.0, 2.0, compile_fun=traced, **options)
+
+    eager, traced = solve(False), solve(True)  # the second compiles
+    assert trials in _products(lambda: solve(False))
+    assert trials not in _products(lambda: solve(True))
+    torch.testing.assert_close(traced.x, eager.x, rtol=0, atol=1e-9)  # summed in another order
+
+
 @pytest.mark.parametrize("options", [{}, {"compile_steps": True, "batched_trials": False}])
 def test_traced_fun_needs_compiled_batched_rounds(options):
     with pytest.raises(ValueError, match="compile_fun needs compile_steps=True"):

@@ -23,6 +23,22 @@ from torchcontact.validation import check_shape
 pk.mjcf.JOINT_TYPE_MAP = {int(k): v for k, v in pk.mjcf.JOINT_TYPE_MAP.items()}
 
 
+def load_robot(mjcf: str | Path, tips: Sequence[str]) -> tuple[Path, mujoco.MjModel, list[int]]:
+    """The robot file's path, its MuJoCo model and the ids of the sites ``tips``; raises
+    ``ValueError`` naming ``mjcf`` or ``tips`` when the file or a site is missing."""
+    path = Path(mjcf)
+    if not path.is_file():
+        raise ValueError(f"mjcf must be an existing MJCF file, got {str(mjcf)!r}")
+    model = mujoco.MjModel.from_xml_path(str(path))
+    if not tips:
+        raise ValueError("tips must name at least one site")
+    site_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) for name in tips]
+    unknown = [name for name, i in zip(tips, site_ids, strict=True) if i < 0]
+    if unknown:
+        raise ValueError(f"tips must name sites of {path.name}, got {unknown}")
+    return path, model, site_ids
+
+
 class FingertipKinematics(torch.nn.Module):
     """World positions of named sites as a batched, differentiable function of the joints.
 
@@ -43,18 +59,11 @@ class FingertipKinematics(torch.nn.Module):
         device: torch.device | str | None = None,
     ):
         super().__init__()
-        path = Path(mjcf)
-        if not path.is_file():
-            raise ValueError(f"mjcf must be an existing MJCF file, got {str(mjcf)!r}")
-        model = mujoco.MjModel.from_xml_path(str(path))
-        if not tips:
-            raise ValueError("tips must name at least one site")
-        for name in tips:
-            if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) < 0:
-                raise ValueError(f"tips must name sites of {path.name}, got {name!r}")
+        path, model, _ = load_robot(mjcf, tips)
         # pytorch-kinematics parses offsets in float32: positions agree with MuJoCo to ~1e-8 m.
         chain = pk.build_chain_from_mjcf(path.read_text(), assets=_mesh_assets(path))
         self.chain = chain.to(dtype=dtype, device=device)
+        self.mjcf = path
         self.tips = tuple(tips)
         self.joint_names = tuple(model.joint(j).name for j in range(model.njnt))
         offset = [model.joint(j).name for j in range(model.njnt) if model.jnt_pos[j].any()]
