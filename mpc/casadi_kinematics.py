@@ -4,7 +4,7 @@ The paper's implementation writes each hand's forward kinematics by hand in CasA
 baseline (:mod:`torchcontact.mpc.ipopt_baseline`) needs the same map to state the hands' MPC,
 so this composes it from the MuJoCo model instead: per body, its fixed offset from the
 parent, then its joints in order, as MuJoCo's own kinematics pass does. Agreement with the
-MuJoCo sites and with the pytorch-kinematics chain is tested.
+MuJoCo sites is tested.
 """
 
 from __future__ import annotations
