@@ -143,7 +143,11 @@ def test_the_speed_benchmark_times_both_solvers_on_one_short_trial(tmp_path):
     overall = read_json(out / "ipopt_speed.json")["rows"][-1]
     assert overall["steps"] == 3 and overall["ours_ms_median"] > 0
     assert overall["ipopt_lean_ms_median"] > 0 < overall["ipopt_reference_ms_median"]
-    assert (out / "trials" / "rotation_cube_seed0_steps8.json").exists()
+    record = read_json(out / "trials" / "rotation_cube_seed0_steps8.json")
+    # each formulation replays the very states our closed loop visited, in its own pass
+    for name in ("lean", "reference"):
+        assert len(record["ipopt"][name]["ms"]) == len(record["ours_ms"]) == 3
+        assert sum(record["ipopt"][name]["status"].values()) == 3
 
 
 def test_the_speed_benchmark_runs_a_hand(tmp_path):
