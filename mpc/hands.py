@@ -20,7 +20,8 @@ GRAVITY = 9.8  # [m/s²]
 
 def tips_before_sliding(obj: ObjectMesh, mu: float = MODEL_FRICTION) -> bool:
     """Whether a push at ``obj``'s pose point tips it over before it slides on friction ``mu``
-    (``mu · obj.tipping_ratio() > 1``): the binoculars, camera, rubber duck and water bottle."""
+    (``mu · obj.tipping_ratio() > 1``): the binoculars, camera, rubber duck, water bottle and
+    (a rod since scenes v7) the stick."""
     return mu * obj.tipping_ratio() > 1.0
 
 

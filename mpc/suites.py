@@ -28,7 +28,7 @@ With the cavities of the bowl, cup, mug and torus open (``"auto"``), the TriFing
 set such an object down around a resting fingertip, which then stays caught in the cup or
 the torus' tube: each of their failed trials started so (README, TriFinger and Allegro)."""
 
-SCENES_VERSION = 6
+SCENES_VERSION = 7
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
 resumed sweep reruns trials from older versions. 2: object poses at the box centre (bunny and
 cup lower, as the reference's meshes), the reference scenes' per-object friction, Allegro sizes
@@ -38,7 +38,8 @@ cost on objects that tip before they slide. 4: the Allegro MPC's final position 
 (the paper's 100 let it turn objects off the palm); the TriFinger's contacts are detected
 5 mm before touch (``Hand.contact_margin``). 5: the Allegro's links collide with each other
 and with the palm, as on the real hand (Menagerie's and the reference's models). 6: the MPC
-plans toward :func:`~torchcontact.mpc.tasks.aim_pose`, flip targets raised out of the ground."""
+plans toward :func:`~torchcontact.mpc.tasks.aim_pose`, flip targets raised out of the ground.
+7: the stick is a rod with an elliptic section and rounded ends, as the paper's mesh."""
 
 
 @dataclass(frozen=True)

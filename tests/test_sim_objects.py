@@ -115,6 +115,26 @@ def test_grid_mass_properties_match_exact_integrals_on_a_convex_mesh(tmp_path):
     np.testing.assert_allclose(obj.inertia, exact.moment_inertia, atol=0.01 * obj.inertia.max())
 
 
+def test_the_stick_is_an_elliptic_rod_with_rounded_ends():
+    """As the paper's stick mesh: an elliptic section (not a box's corners) that narrows
+    toward both ends over their last 15 mm."""
+    stick = make_object("stick").parts[0]
+    length, width, height = OBJECT_SIZES["stick"]
+    elliptic_cylinder = math.pi * (width / 2) * (height / 2) * length
+    assert 0.8 * elliptic_cylinder < stick.volume < elliptic_cylinder
+
+    def section_width(x):
+        section = stick.section(plane_origin=[x, 0, 0], plane_normal=[1, 0, 0])
+        return np.ptp(section.vertices[:, 1])
+
+    assert section_width(0.0) == pytest.approx(width, rel=0.01)
+    assert section_width(length / 2 - 0.015) == pytest.approx(width, rel=0.01)
+    assert 0.2 * width < section_width(length / 2 - 0.001) < 0.6 * width
+    # the box's corner lies outside, at least 3 mm beyond one of the rod's facet planes
+    corner = np.array([0.0, width / 2, height / 2, 1.0])
+    assert (ConvexHull(stick.vertices).equations @ corner).max() > 3e-3
+
+
 def test_the_origin_of_a_bottom_heavy_object_is_its_box_centre():
     """The duck's mass sits low in its box; its pose is still that of the box centre."""
     duck = make_object("rubber_duck")

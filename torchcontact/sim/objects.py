@@ -521,7 +521,19 @@ def _foam_brick():
 
 
 def _stick():
-    return [_box([0.13, 0.035, 0.03])]
+    """Rod along x with an elliptic cross-section and rounded ends, as the paper's stick mesh
+    (its ends taper over their last 15 mm). Over 100 Allegro seeds it turned 55 % against the
+    box's 41 % (README, TriFinger and Allegro)."""
+    half, cap = 0.065, 0.015  # half length; length of each ellipsoidal end cap [m]
+    # half a step off the axes, so that a flat facet, not a ridge, rests on the support
+    angles = (np.arange(32) + 0.5) * (2 * np.pi / 32)
+    section = np.stack([0.0175 * np.cos(angles), 0.015 * np.sin(angles)], -1)
+    rings = []
+    for x in np.concatenate([np.linspace(-half, cap - half, 8), np.linspace(half - cap, half, 8)]):
+        along = (abs(x) - (half - cap)) / cap  # 0 where the cap starts, 1 at the tip
+        scale = max(np.sqrt(max(1.0 - along**2, 0.0)), 0.05)  # a small flat tip, not a point
+        rings.append(np.concatenate([np.full((len(angles), 1), x), scale * section], -1))
+    return [_convex(np.concatenate(rings))]
 
 
 def _bunny():
