@@ -435,7 +435,7 @@ def _direction(
     rows = pairs * free[:, None, None, :]  # (B, m, 2, n)
     squares = (rows * rows).sum(-1)  # (B, m, 2): ‖Z s_i‖², ‖Z y_i‖²
     s_dot_y = (rows[:, :, 0] * rows[:, :, 1]).sum(-1)
-    valid = (s_dot_y > curvature_eps * squares.prod(-1).sqrt()).to(grad.dtype)
+    valid = _curved(s_dot_y, squares[..., 0], squares[..., 1], curvature_eps).to(grad.dtype)
     rows = (rows * valid[:, :, None, None]).flatten(1, 2)  # (B, 2m, n): s_0, y_0, s_1, y_1, …
     gram = torch.bmm(rows, rows.mT)
     r_upper = gram[:, ::2, 1::2].triu()
@@ -452,6 +452,18 @@ def _direction(
     direction = steepest - torch.bmm(rows.mT, coefficients)[:, :, 0]
     descent = (direction * free_grad).sum(-1) < 0
     return torch.where(descent[:, None], direction, steepest)
+
+
+def _curved(
+    s_dot_y: torch.Tensor, s_squared: torch.Tensor, y_squared: torch.Tensor, eps: float
+) -> torch.Tensor:
+    """Whether a pair (s, y) may enter the memory: sᵀy > eps·‖s‖‖y‖, with sᵀy, ‖s‖² and ‖y‖²
+    normal numbers. Near convergence in float32 a tiny accepted step can give a y whose ‖y‖²
+    underflows to 0 while sᵀy does not (about 1e-23 per element), and such a pair would make
+    γ = sᵀy/‖y‖² infinite and the next direction NaN."""
+    tiny = torch.finfo(s_dot_y.dtype).tiny
+    normal = (s_dot_y >= tiny) & (s_squared >= tiny) & (y_squared >= tiny)
+    return normal & (s_dot_y > eps * s_squared.sqrt() * y_squared.sqrt())
 
 
 def _advance(
@@ -480,7 +492,7 @@ def _advance(
     pair = torch.stack([x_new - x, grad_new - grad], dim=1)  # (B, 2, n): s, y
     products = torch.bmm(pair, pair.mT)
     s_dot_y, y_dot_y = products[:, 0, 1], products[:, 1, 1]
-    curvature = accepted & (s_dot_y > settings.curvature_eps * (products[:, 0, 0] * y_dot_y).sqrt())
+    curvature = accepted & _curved(s_dot_y, products[:, 0, 0], y_dot_y, settings.curvature_eps)
     failed = running & ~accepted
     restart = failed & ~state.empty & (state.step_scale < RESTART_SCALE)
     pairs = torch.where(

@@ -371,6 +371,32 @@ def test_integer_x0_is_a_type_error():
         lbfgs_box(_fun, torch.zeros(2, 2, dtype=torch.int64))
 
 
+@pytest.mark.parametrize("compile_steps", [False, True])
+def test_float32_pair_whose_y_underflows_stays_finite(compile_steps):
+    """f = ½·a·‖x‖² (a = 1e-6) from x = (1e-12, 0) in float32: the first step s ≈ −1e-18 gives
+    y = a·s ≈ 1e-24, whose ‖y‖² underflows to 0 while sᵀy ≈ 1e-42 does not. Such a pair must
+    not enter the memory: it made γ = sᵀy/‖y‖² infinite and −γ·g NaN on x₁, whose gradient is
+    0 (an Allegro MPC step near convergence raised "fun returned NaN" so)."""
+    curvature = 1e-6
+
+    def fun(x):
+        return 0.5 * curvature * x.square().sum(-1), curvature * x
+
+    x0 = torch.tensor([[1e-12, 0.0]])
+    result = lbfgs_box(
+        fun,
+        x0,
+        -torch.ones(1, 2),
+        torch.ones(1, 2),
+        max_iter=5,
+        tol_grad=0.0,
+        tol_change=0.0,
+        compile_steps=compile_steps,
+    )
+    assert torch.isfinite(result.x).all() and torch.isfinite(result.f).all()
+    assert result.n_iter.item() >= 1 and result.f.item() < 0.5 * curvature * 1e-24
+
+
 @pytest.mark.parametrize("batched_trials", [True, False])
 def test_non_finite_objective_raises(batched_trials):
     def fun(x):
