@@ -21,7 +21,7 @@ PAPER_STIFFNESS = 1.0  # K, the paper's
 STIFFNESS = 4.64
 """The default K: ``torchcontact learn-k --scene fingertips --object cube``'s best constant K
 on the cube's MPC rollouts (10-step error 0.066 against 0.084 with the paper's K = 1). Over
-the nine pairs × 20 trials it raised success from 75.6 to 86.1 % (README, fingertips)."""
+the nine pairs × 20 trials it raised success from 75.6 to 86.1 % (docs/journal.md, fingertips)."""
 LAYOUT = JointLayout(["free"] + ["slide"] * 9)
 
 

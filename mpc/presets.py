@@ -100,14 +100,14 @@ paper's 97 % in both, at no cost in the median step;
 ``accurate`` (T = 6) had the smallest final angle error, at 3× the solve time. The fingertips'
 ``balanced`` caps L-BFGS at 20 iterations since their default K became the stiffer 4.64, which
 needs more of them: over the nine pairs × 20 trials 15, 20 and 30 iterations gave 81.7, 86.1
-and 84.4 % success at 8.8, 10.7 and 13.9 ms median (README, fingertips). Since session 10 it
-plans with propagated gaps: 96.1 % of the nine pairs × 20 against 87.8 % frozen, at a 12.9 ms
-median (the in-air cube and foam brick 100 % against 75 and 65 %). The TriFinger's stays
-frozen: propagated, its first 157 trials lost 3 successes to the frozen sweep's. Since
+and 84.4 % success at 8.8, 10.7 and 13.9 ms median (docs/journal.md, fingertips). Since session
+10 it plans with propagated gaps: 96.1 % of the nine pairs × 20 against 87.8 % frozen, at a
+12.9 ms median (the in-air cube and foam brick 100 % against 75 and 65 %). The TriFinger's
+stays frozen: propagated, its first 157 trials lost 3 successes to the frozen sweep's. Since
 session 13 both hands' ``balanced`` solve in float32 (the Allegro's otherwise the paper's
 settings): full 17-object sweeps gave the TriFinger (8 iterations then) 96.8 % against 96.5 %
-in float64 at a 3.3 ms median, the Allegro 87.9 % against 89.1 % (4 trials of 340) at
-4.1 ms against 7.0 ms (README, TriFinger and Allegro)."""
+in float64 at a 3.3 ms median, the Allegro 87.9 % against 89.1 % (4 trials of 340) at 4.1 ms
+against 7.0 ms (docs/journal.md, TriFinger and Allegro)."""
 
 NAMES = ("fast", "balanced", "accurate")
 DEFAULT_PRESET = "balanced"

@@ -26,7 +26,7 @@ BENCHMARK_COLLISION = "hull"
 do (each is one mesh geom in its reference scenes, which MuJoCo collides through its hull).
 With the cavities of the bowl, cup, mug and torus open (``"auto"``), the TriFinger sampler can
 set such an object down around a resting fingertip, which then stays caught in the cup or
-the torus' tube: each of their failed trials started so (README, TriFinger and Allegro)."""
+the torus' tube: each of their failed trials started so (docs/journal.md, session 9)."""
 
 SCENES_VERSION = 7
 """Version of the plants, samplers and MPC costs, stored with every trial record so that a
