@@ -150,6 +150,7 @@ def run_trial(
         "target_pose": target.tolist(),
         "aim_pose": aim.tolist(),
         "final_pose": final.tolist(),
+        "fell": tasks.fell(initial, final),
         "detect_ms": detect_ms,
         "solve_ms": solve_ms,
         "sim_ms": sim_ms,
@@ -171,6 +172,8 @@ def summarize(records: list[dict]) -> dict:
     def mean_of(key, rows):
         return float(np.mean([r[key] for r in rows])) if rows else float("nan")
 
+    fallen = [_fell(r) for r in records]
+
     return {
         "success_rate": len(success) / len(records),
         "pos_err_mm_mean": mean_of("pos_err_mm", records),
@@ -185,7 +188,19 @@ def summarize(records: list[dict]) -> dict:
         "iterations_median": float(np.median(np.concatenate([r["iterations"] for r in records]))),
         "steps_median": float(np.median([r["steps"] for r in records])),
         "trials": len(records),
+        # trials whose object left its support (see tasks.fell); None where a record cannot tell
+        "falls": None if None in fallen else sum(fallen),
     }
+
+
+def _fell(record: dict) -> bool | None:
+    """A record's ``fell``; for records written before the key, from their poses (None
+    when they have none)."""
+    if "fell" in record:
+        return record["fell"]
+    if "initial_pose" in record and "final_pose" in record:
+        return tasks.fell(record["initial_pose"], record["final_pose"])
+    return None
 
 
 def plot_results(records: list[dict], path: Path) -> Path:
@@ -525,14 +540,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         write_json(args.json, summary)
     if len(args.pairs) > 1:
-        print(f"{'pair':>30s} {'success':>8s} {'pos [mm]':>9s} {'ang [°]':>8s} {'solve ms':>9s}")
+        print(
+            f"{'pair':>30s} {'success':>8s} {'falls':>5s} {'pos [mm]':>9s} {'ang [°]':>8s} "
+            f"{'solve ms':>9s}"
+        )
         for pair, s in summary["pairs"].items():
             print(
-                f"{pair:>30s} {100 * s['success_rate']:>7.0f}% {s['pos_err_mm_mean']:>9.1f} "
-                f"{s['angle_err_deg_mean']:>8.1f} {s['solve_ms_median']:>9.1f}"
+                f"{pair:>30s} {100 * s['success_rate']:>7.0f}% {_count(s['falls']):>5s} "
+                f"{s['pos_err_mm_mean']:>9.1f} {s['angle_err_deg_mean']:>8.1f} "
+                f"{s['solve_ms_median']:>9.1f}"
             )
     print(
-        f"success {100 * summary['success_rate']:.1f}% of {summary['trials']} | "
+        f"success {100 * summary['success_rate']:.1f}% of {summary['trials']}, "
+        f"falls {_count(summary['falls'])} | "
         f"final position {summary['pos_err_mm_mean']:.1f} mm, "
         f"angle {summary['angle_err_deg_mean']:.1f}° (quat err {summary['quat_err_mean']:.4f}) | "
         f"MPC solve median {summary['solve_ms_median']:.1f} ms, p90 {summary['solve_ms_p90']:.1f}"
@@ -542,8 +562,13 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _count(n: int | None) -> str:
+    return "?" if n is None else str(n)
+
+
 def _csv_row(record: dict) -> dict:
     keys = ("task", "object", "seed", "success", "steps", "pos_err_mm", "quat_err")
     row = {k: record[k] for k in (*keys, "angle_err_deg")}
+    row["fell"] = _fell(record)
     row["solve_ms_median"] = float(np.median(record["solve_ms"]))
     return row

@@ -290,6 +290,23 @@ def position_error(position, target_position) -> np.ndarray:
     return np.linalg.norm(delta, axis=-1)
 
 
+FALL_DROP = 0.05
+"""[m] How far below its initial height an object must end to count as fallen off its support.
+The Allegro's palm lies about 0.2 m above the floor; an object that leaves the ground-based
+tasks' floor cannot end lower than it started."""
+
+
+def fell(initial_pose, final_pose) -> bool:
+    """Whether the object ended more than :data:`FALL_DROP` below its initial height (it left
+    the palm), for poses ``(7,)``: position [m], quaternion (w, x, y, z)."""
+    start, end = np.asarray(initial_pose, dtype=float), np.asarray(final_pose, dtype=float)
+    if start.shape != (7,) or end.shape != (7,):
+        raise ValueError(
+            f"initial_pose and final_pose must be (7,) poses, got {start.shape} and {end.shape}"
+        )
+    return bool(end[2] < start[2] - FALL_DROP)
+
+
 # --- sampling ----------------------------------------------------------------------------
 
 

@@ -28,6 +28,7 @@ def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
     record = json.loads((out / "trials" / "fingertips_rotation_cube_seed0.json").read_text())
     assert record["steps"] == 15 and len(record["solve_ms"]) == 15
     assert record["aim_pose"] == record["target_pose"]  # a rotation target rests already
+    assert record["fell"] is False and summary["falls"] == 0  # the ground holds it
     printed = capsys.readouterr().out
     assert "rotation" in printed and "success 0.0% of 1" in printed
 
@@ -211,3 +212,20 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_trials(tmp_path, 
     )
     assert main([*two, *FAST, "--out", str(out)]) == 0
     assert ran == [1]
+
+
+def test_summary_counts_falls_and_reads_them_from_older_records():
+    def record(fell=None, z_end=0.03, poses=True):
+        r = {"success": False, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
+             "steps": 1, "solve_ms": [1.0], "detect_ms": [1.0], "sim_ms": [1.0],
+             "iterations": [1]}  # fmt: skip
+        if poses:
+            r["initial_pose"] = [0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]
+            r["final_pose"] = [0.0, 0.0, z_end, 1.0, 0.0, 0.0, 0.0]
+        if fell is not None:
+            r["fell"] = fell
+        return r
+
+    assert summarize([record(True), record(False), record(z_end=-0.17)])["falls"] == 2
+    assert summarize([record(False), record(z_end=0.02)])["falls"] == 0
+    assert summarize([record(True), record(poses=False)])["falls"] is None

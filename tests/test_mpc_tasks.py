@@ -257,3 +257,26 @@ def test_most_flip_targets_of_the_foam_brick_sink_and_are_aimed_above_them():
 def test_bad_aim_input_names_the_argument(args, message):
     with pytest.raises(ValueError, match=message):
         aim_pose(*args)
+
+
+def test_an_object_pushed_off_the_allegro_palm_falls_and_one_on_it_does_not():
+    from torchcontact.sim.hands import HandEnv
+
+    env = HandEnv("allegro", "cube")
+    identity = [1.0, 0.0, 0.0, 0.0]
+    for dx, falls in ((0.0, False), (-0.25, True)):  # the wrist edge lies on −x
+        start = env.resting_pose(env.support_centre + [dx, 0.0], identity)
+        env.reset(start)
+        for _ in range(10):
+            env.step(np.zeros(env.nu))
+        assert tasks.fell(start, env.state()[:7]) is falls
+
+
+def test_fell_counts_a_drop_beyond_the_threshold_only():
+    start = np.array([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0])
+    low = start - [0, 0, tasks.FALL_DROP + 1e-6, 0, 0, 0, 0]
+    high = start - [0, 0, tasks.FALL_DROP - 1e-6, 0, 0, 0, 0]
+    assert tasks.fell(start, low) and not tasks.fell(start, high)
+    assert not tasks.fell(start, start + [0.3, 0.3, 0.1, 0, 0, 0, 0])  # far, but not lower
+    with pytest.raises(ValueError, match="final_pose"):
+        tasks.fell(start, start[:3])
