@@ -292,8 +292,8 @@ def position_error(position, target_position) -> np.ndarray:
 
 FALL_DROP = 0.05
 """[m] How far below its initial height an object must end to count as fallen off its support.
-The Allegro's palm lies about 0.2 m above the floor; an object that leaves the ground-based
-tasks' floor cannot end lower than it started."""
+The Allegro's palm lies about 0.2 m above the floor; in the other tasks the object starts on
+the floor and cannot end lower."""
 
 
 def fell(initial_pose, final_pose) -> bool:

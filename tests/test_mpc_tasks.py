@@ -259,7 +259,7 @@ def test_bad_aim_input_names_the_argument(args, message):
         aim_pose(*args)
 
 
-def test_an_object_pushed_off_the_allegro_palm_falls_and_one_on_it_does_not():
+def test_an_object_set_beyond_the_allegro_palm_falls_and_one_on_it_does_not():
     from torchcontact.sim.hands import HandEnv
 
     env = HandEnv("allegro", "cube")
