@@ -21,6 +21,7 @@ from torchcontact.mpc.tasks import (
     quaternion_error,
     sample,
 )
+from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.objects import object_names
 
 SEEDS = range(tasks.TRIALS)
@@ -260,8 +261,6 @@ def test_bad_aim_input_names_the_argument(args, message):
 
 
 def test_an_object_set_beyond_the_allegro_palm_falls_and_one_on_it_does_not():
-    from torchcontact.sim.hands import HandEnv
-
     env = HandEnv("allegro", "cube")
     identity = [1.0, 0.0, 0.0, 0.0]
     for dx, falls in ((0.0, False), (-0.25, True)):  # the wrist edge lies on −x
