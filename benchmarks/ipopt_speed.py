@@ -39,14 +39,14 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
-from torchcontact.mpc import tasks  # noqa: E402
+from torchcontact.environments import tasks  # noqa: E402
+from torchcontact.environments.presets import preset_options  # noqa: E402
 from torchcontact.mpc.fingertips import fingertips_mpc  # noqa: E402
 from torchcontact.mpc.ipopt_baseline import (  # noqa: E402
     FORMULATIONS,
     REFERENCE_MAX_ITER,
     IpoptMPC,
 )
-from torchcontact.mpc.presets import preset_options  # noqa: E402
 from torchcontact.mpc.suites import SUITES  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
 

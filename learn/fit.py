@@ -25,12 +25,12 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
+from torchcontact.environments.costs import position_cost, quaternion_cost
 from torchcontact.functional import softplus
 from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
 from torchcontact.learn.data import Transitions, select_contacts
 from torchcontact.learn.networks import ObjectContactNetwork
 from torchcontact.model import ComplementarityFree
-from torchcontact.mpc.costs import position_cost, quaternion_cost
 from torchcontact.results import atomic_write
 from torchcontact.stiffness import (
     Constant,

@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import torch
 
 from torchcontact.contacts import Contacts
+from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.presets import GAPS
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import ComplementarityFree, RelaxedQP
-from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.mpc.optim import lbfgs_box
 from torchcontact.relaxed_qp import (
     PAPER_RELAXATION,
@@ -39,15 +40,6 @@ from torchcontact.validation import check_shape, validate_args
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
 
-
-GAPS = ("frozen", "propagated")
-"""How the MPC's model treats the contact distances φ̃ over the horizon, by name.
-
-``"frozen"``: the paper's Algorithm 1, every step of the rollout sees the distances detected at
-the real state. ``"propagated"``: J̃ stays frozen, but each step's distance follows the motion
-the model itself predicts, to first order along the frozen normal rows,
-``φ_{t+1} = φ_t + h Jⁿ v_t``: a tip the plan moves off the object stops pushing it later in the
-horizon, and one it presses in pushes harder (complementarity-free model only)."""
 
 CONTACT_BUCKET = 4
 """The MPC pads the detected contacts with inert slots to a multiple of this many: a compiled

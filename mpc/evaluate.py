@@ -32,9 +32,16 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from torchcontact.mpc import tasks
-from torchcontact.mpc.controller import GAPS, MPC_MODELS
-from torchcontact.mpc.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings, preset
+from torchcontact.environments import tasks
+from torchcontact.environments.presets import (
+    DEFAULT_PRESET,
+    GAPS,
+    NAMES,
+    PAPER,
+    MPCSettings,
+    preset,
+)
+from torchcontact.mpc.controller import MPC_MODELS
 from torchcontact.mpc.suites import BENCHMARK_COLLISION, SCENES_VERSION, SUITES
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import atomic_write, read_json, save_figure, write_csv, write_json

@@ -6,10 +6,10 @@ import math
 
 import torch
 
+from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.tasks import OBJECT_SETTINGS
 from torchcontact.integrate import JointLayout
 from torchcontact.mpc.controller import ContactImplicitMPC, mpc_model
-from torchcontact.mpc.costs import ManipulationCost
-from torchcontact.mpc.tasks import OBJECT_SETTINGS
 from torchcontact.systems import QuasiDynamic
 
 OBJECT_MASS = 0.01  # [kg], the model's Mₒ in b = m·g

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import torch
 
+from torchcontact.environments.costs import ManipulationCost
 from torchcontact.integrate import JointLayout
 from torchcontact.mpc.controller import ContactImplicitMPC, mpc_model
-from torchcontact.mpc.costs import ManipulationCost
 from torchcontact.sim.hands import HANDS, MODEL_FRICTION, Hand
 from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import ObjectMesh

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchcontact.mpc import tasks
+from torchcontact.environments import tasks
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.fingertips import PAPER_STIFFNESS, STIFFNESS, fingertips_mpc
 from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc
@@ -38,7 +38,8 @@ cost on objects that tip before they slide. 4: the Allegro MPC's final position 
 (the paper's 100 let it turn objects off the palm); the TriFinger's contacts are detected
 5 mm before touch (``Hand.contact_margin``). 5: the Allegro's links collide with each other
 and with the palm, as on the real hand (Menagerie's and the reference's models). 6: the MPC
-plans toward :func:`~torchcontact.mpc.tasks.aim_pose`, flip targets raised out of the ground.
+plans toward :func:`~torchcontact.environments.tasks.aim_pose`, flip targets raised out of the
+ground.
 7: the stick is a rod with an elliptic section and rounded ends, as the paper's mesh."""
 
 
@@ -84,7 +85,7 @@ class Suite:
 
     def aim(self, env, target: np.ndarray) -> np.ndarray:
         """The ``(7,)`` pose the MPC plans toward for ``target (7,)`` in plant ``env``:
-        :func:`~torchcontact.mpc.tasks.aim_pose` with the plant's resting height and the
+        :func:`~torchcontact.environments.tasks.aim_pose` with the plant's resting height and the
         suite's position tolerance."""
         resting = env.resting_height(target[3:])
         return tasks.aim_pose(target, resting, self.criterion.position_tolerance)

@@ -25,8 +25,8 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from torchcontact.environments.presets import NAMES, PAPER, PRESETS, MPCSettings
 from torchcontact.mpc import evaluate
-from torchcontact.mpc.presets import NAMES, PAPER, PRESETS, MPCSettings
 from torchcontact.results import (
     atomic_write,
     pareto_front,

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcontact import AnitescuQP
+from torchcontact.environments import tasks
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import integrate
-from torchcontact.mpc import tasks
 from torchcontact.mpc.controller import CONTACT_BUCKET, GAPS, ContactImplicitMPC
 from torchcontact.mpc.fingertips import CONTROL_BOUND, LAYOUT, fingertip_positions, fingertips_mpc
 from torchcontact.sim import FingertipsEnv

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
+from torchcontact.environments.presets import PAPER
 from torchcontact.mpc import tradeoff
-from torchcontact.mpc.presets import PAPER
 from torchcontact.results import pareto_front
 
 EAGER = PAPER.label.replace("compiled", "eager")

@@ -48,7 +48,7 @@ class FingertipsEnv(Plant):
         condim: contact dimensionality of every geom (6: sliding, torsional and rolling).
         contact_slots: slots nc of :meth:`contacts` (the paper: 8 for cube and stick, 10 for
             foam brick and bunny; 12 for our multi-part bunny; see
-            ``torchcontact.mpc.tasks.OBJECT_SETTINGS``).
+            ``torchcontact.environments.tasks.OBJECT_SETTINGS``).
         contact_mu: μ written into :meth:`contacts` (the model's 0.5), None for MuJoCo's.
         overflow: what :meth:`contacts` does when more object contacts exist than slots:
             ``"error"`` raises (default: nothing is dropped silently); ``"deepest"`` keeps the

@@ -5,9 +5,7 @@ import dataclasses
 import pytest
 import torch
 
-from torchcontact.mpc.evaluate import parse_args
-from torchcontact.mpc.fingertips import fingertips_mpc
-from torchcontact.mpc.presets import (
+from torchcontact.environments.presets import (
     DEFAULT_PRESET,
     NAMES,
     PRESETS,
@@ -15,6 +13,8 @@ from torchcontact.mpc.presets import (
     preset,
     preset_options,
 )
+from torchcontact.mpc.evaluate import parse_args
+from torchcontact.mpc.fingertips import fingertips_mpc
 from torchcontact.mpc.suites import SUITES
 from torchcontact.mpc.tradeoff import GRID
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from torchcontact.mpc import tasks
-from torchcontact.mpc.tasks import (
+from torchcontact.environments import tasks
+from torchcontact.environments.tasks import (
     OBJECT_SETTINGS,
     PAPER_PAIRS,
     SuccessCriterion,

@@ -21,7 +21,14 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from torchcontact.mpc.controller import GAPS
+GAPS = ("frozen", "propagated")
+"""How the MPC's model treats the contact distances φ̃ over the horizon, by name.
+
+``"frozen"``: the paper's Algorithm 1, every step of the rollout sees the distances detected at
+the real state. ``"propagated"``: J̃ stays frozen, but each step's distance follows the motion
+the model itself predicts, to first order along the frozen normal rows,
+``φ_{t+1} = φ_t + h Jⁿ v_t``: a tip the plan moves off the object stops pushing it later in the
+horizon, and one it presses in pushes harder (complementarity-free model only)."""
 
 
 @dataclass(frozen=True)
@@ -35,7 +42,7 @@ class MPCSettings:
         dtype: ``"float32"`` or ``"float64"``, of the solve.
         compile: ``torch.compile`` the objective and optimizer steps (else eager).
         gaps: ``"frozen"`` (the paper's) or ``"propagated"`` contact distances over the
-            horizon, see :data:`~torchcontact.mpc.controller.GAPS`.
+            horizon, see :data:`GAPS`.
     """
 
     max_iter: int = 30

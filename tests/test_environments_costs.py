@@ -5,9 +5,9 @@ import math
 
 import torch
 
-from torchcontact.mpc.costs import ManipulationCost, tilt_cost, up_axis
+from torchcontact.environments.costs import ManipulationCost, tilt_cost, up_axis
+from torchcontact.environments.tasks import quat_from_yaw_pitch_roll
 from torchcontact.mpc.hands import MPC_SETTINGS
-from torchcontact.mpc.tasks import quat_from_yaw_pitch_roll
 
 DT = torch.float64
 
