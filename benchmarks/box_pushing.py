@@ -4,18 +4,19 @@
     python benchmarks/box_pushing.py --cubes 10 --json out.json
 
 Prints a table and writes JSON, CSV and a PNG (default under results/box_pushing/); see
-``torchcontact.experiments.box_pushing`` for the scene, the timed region and the options.
+``studies.box_pushing`` for the experiment, the timed region and the options, and
+``torchcontact.sim.box_pushing`` for the scene.
 """
 
 import os
+import sys
+from pathlib import Path
 
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repo root: studies/
 
-import torch  # noqa: E402
-
-from torchcontact.experiments.box_pushing import main  # noqa: E402
-
-torch.set_num_threads(1)
+from studies.box_pushing import main  # noqa: E402
+from studies.report import run_main  # noqa: E402
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

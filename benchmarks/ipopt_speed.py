@@ -8,7 +8,7 @@ The issue's speed target is relative to the paper's implementation on the same m
 runs both in one process on one thread. Each trial is first driven closed-loop by our MPC (the
 ``balanced`` preset, as ``torchcontact run ENV``) for ``--steps`` steps, timing its solves and
 keeping the states and contacts it visits. Then
-:class:`~torchcontact.mpc.ipopt_baseline.IpoptMPC` solves the paper's MPC problem at the same
+:class:`~studies.ipopt_baseline.IpoptMPC` solves the paper's MPC problem at the same
 states in order, once per way of stating it, each in its own pass: our lean NLP and the
 reference code's own formulation (``FORMULATIONS``). Each is frozen gaps, float64,
 warm-started from its own previous solution (the fingertips' IPOPT at most 100 iterations
@@ -25,28 +25,28 @@ Prints per-pair and overall medians and their ratios, and writes JSON and CSV (d
 written at once, and a rerun with the same ``--out`` skips it.
 """
 
+import argparse
+import math
 import os
+import statistics
+import sys
+from pathlib import Path
 
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
-
-import argparse  # noqa: E402
-import math  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repo root: studies/
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from tqdm.auto import tqdm  # noqa: E402
 
-from torchcontact.environments import tasks  # noqa: E402
-from torchcontact.environments.presets import preset_options  # noqa: E402
-from torchcontact.mpc.fingertips import fingertips_mpc  # noqa: E402
-from torchcontact.mpc.ipopt_baseline import (  # noqa: E402
+from studies.ipopt_baseline import (  # noqa: E402
     FORMULATIONS,
     REFERENCE_MAX_ITER,
     IpoptMPC,
 )
+from torchcontact.environments import tasks  # noqa: E402
+from torchcontact.environments.presets import preset_options  # noqa: E402
+from torchcontact.mpc.fingertips import fingertips_mpc  # noqa: E402
 from torchcontact.mpc.suites import SUITES  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
 
@@ -60,7 +60,7 @@ def run_trial(
     task: str, obj: str, seed: int, steps: int, compile: bool = True, env_name: str = "fingertips"
 ) -> dict:
     """Drive one trial of ``env_name`` with our MPC for ``steps`` steps, timing it, then time
-    IPOPT on each NLP formulation (:data:`~torchcontact.mpc.ipopt_baseline.FORMULATIONS`) in
+    IPOPT on each NLP formulation (:data:`~studies.ipopt_baseline.FORMULATIONS`) in
     its own pass over the states it visited."""
     suite = SUITES[env_name]
     env = suite.make_env(obj)

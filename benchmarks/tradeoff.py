@@ -4,9 +4,9 @@
     python benchmarks/tradeoff.py --level model [--quick --out /tmp/tradeoff]
     python benchmarks/tradeoff.py --level mpc [--env trifinger --trials 3 --workers 2]
 
-Model level (``torchcontact.learn.tradeoff``, ~7 min): one-step and 10-step prediction error
+Model level (``studies.model_tradeoff``, ~7 min): one-step and 10-step prediction error
 against MuJoCo and time per step of every contact-model setting; writes tradeoff.csv/.json/.md
-and pareto_*.png under results/tradeoff/. MPC level (``torchcontact.mpc.tradeoff``, about an
+and pareto_*.png under results/tradeoff/. MPC level (``studies.mpc_tradeoff``, about an
 hour on two workers, resumable): closed-loop success, final errors and median solve time of
 each solver setting and the presets; writes mpc_tradeoff.csv/.json/.md and mpc_pareto_*.png
 under results/tradeoff/mpc/. Arguments after ``--level`` go to that level.
@@ -14,13 +14,15 @@ under results/tradeoff/mpc/. Arguments after ``--level`` go to that level.
 
 import os
 import sys
+from pathlib import Path
 
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repo root: studies/
 
 import torch  # noqa: E402
 
-from torchcontact.learn import tradeoff as model_level  # noqa: E402
-from torchcontact.mpc import tradeoff as mpc_level  # noqa: E402
+from studies import model_tradeoff as model_level  # noqa: E402
+from studies import mpc_tradeoff as mpc_level  # noqa: E402
 
 LEVELS = {"model": model_level.main, "mpc": mpc_level.main}
 

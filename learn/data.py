@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -336,17 +336,6 @@ def read_trajectory(directory: str | Path, manifest: dict, entry: dict) -> dict[
     return arrays
 
 
-def select_contacts(contacts: Contacts, index: torch.Tensor) -> Contacts:
-    """The batch rows ``index`` of contacts with batch shape ``(N,)``."""
-    return Contacts(
-        **{
-            f.name: getattr(contacts, f.name)[index]
-            for f in fields(Contacts)
-            if getattr(contacts, f.name) is not None
-        }
-    )
-
-
 @dataclass
 class Transitions:
     """Stacked transitions of a dataset: N rows, from several trajectories.
@@ -377,7 +366,7 @@ class Transitions:
             self.q[index],
             self.u[index],
             self.q_next[index],
-            select_contacts(self.contacts, index),
+            self.contacts[index],
             self.trajectory[index],
             self.step[index],
             self.meta,

@@ -25,13 +25,14 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
-from torchcontact.environments.costs import position_cost, quaternion_cost
+from torchcontact.environments.costs import position_cost
 from torchcontact.functional import softplus
 from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
-from torchcontact.learn.data import Transitions, select_contacts
-from torchcontact.learn.networks import ObjectContactNetwork
+from torchcontact.learn.data import Transitions
 from torchcontact.model import ComplementarityFree
+from torchcontact.networks import ObjectContactNetwork
 from torchcontact.results import atomic_write
+from torchcontact.rotations import quaternion_error
 from torchcontact.stiffness import (
     Constant,
     ContactNetwork,
@@ -44,7 +45,7 @@ from torchcontact.validation import validate_args
 
 STIFFNESS_KINDS = ("constant", "per_row", "contact_network", "state_network", "object_network")
 """Learnable parameterizations of K: those of :mod:`torchcontact.stiffness` and
-:class:`~torchcontact.learn.networks.ObjectContactNetwork`."""
+:class:`~torchcontact.networks.ObjectContactNetwork`."""
 
 DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
 """D: ``"paper"`` fixed 0.1·K, ``"none"``, ``"relative"`` a learned ratio·K, or its own
@@ -224,7 +225,7 @@ class StepData:
             for f in fields(self)
             if f.name not in ("contacts", "h")
         }
-        return StepData(contacts=select_contacts(self.contacts, index), h=self.h, **tensors)
+        return StepData(contacts=self.contacts[index], h=self.h, **tensors)
 
 
 def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:
@@ -245,14 +246,14 @@ def pose_errors(pose: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor,
     """Position error ``‖p − p*‖`` [m] and quaternion error ``1 − ⟨q, q*⟩²`` of poses
     ``(..., 7)``, each ``(...)``."""
     position = position_cost(pose[..., :3], target[..., :3]).sqrt()
-    return position, quaternion_cost(pose[..., 3:], target[..., 3:]).clamp_min(0.0)
+    return position, quaternion_error(pose[..., 3:], target[..., 3:]).clamp_min(0.0)
 
 
 def pose_loss(pose: torch.Tensor, target: torch.Tensor, weights: tuple[float, float]):
     """Mean of ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` over poses ``(..., 7)``: the MPC's final
     cost terms."""
     position = position_cost(pose[..., :3], target[..., :3])
-    quaternion = quaternion_cost(pose[..., 3:], target[..., 3:])
+    quaternion = quaternion_error(pose[..., 3:], target[..., 3:])
     return (weights[0] * position + weights[1] * quaternion).mean()
 
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from pytorch_kinematics.transforms import quaternion_to_matrix
 
 from torchcontact.contacts import Contacts
 from torchcontact.learn.scenes import BoxPushingScene, Scene
+from torchcontact.rotations import quaternion_to_matrix
 
 ACTIONS = ("random", "mpc", "mixed")
 """Action sources of a dataset; ``"mixed"`` alternates random (even ids) and MPC (odd ids)."""

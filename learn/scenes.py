@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchcontact.experiments import box_pushing as bp
-from torchcontact.experiments.box_pushing_plant import BoxPushingPlant
 from torchcontact.integrate import JointLayout
 from torchcontact.model import ComplementarityFree
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.suites import SUITES
+from torchcontact.sim import box_pushing as bp
+from torchcontact.sim.box_pushing import BoxPushingPlant
 from torchcontact.sim.hands import HandEnv
 from torchcontact.sim.plant import Plant
 from torchcontact.stiffness import Constant, Relative

@@ -224,3 +224,144 @@ def test_active_must_be_bool():
     fields["active"] = torch.ones(3)
     with pytest.raises(TypeError, match="active"):
         Contacts(**fields)
+
+
+FIELDS = ("phi", "jac_normal", "jac_tangent", "mu", "active", "frame", "position")
+
+
+def _assert_fields(actual: Contacts, expected: dict) -> None:
+    for name in FIELDS:
+        assert torch.equal(getattr(actual, name), expected[name]), name
+
+
+@pytest.mark.parametrize(
+    "index",
+    [
+        1,
+        -1,
+        slice(1, 3),
+        (0, 2),
+        (slice(None), 1),
+        torch.tensor([2, 0, 2]),
+        torch.tensor([[True, False, True, True]] * 3),
+        [0, 2],
+        (Ellipsis, 3),
+        (Ellipsis,),
+        (None, 1),
+    ],
+)
+def test_indexing_selects_on_the_batch_dimensions(index):
+    c = random_contacts(2, 5, batch=(3, 4))
+    actual = c[index]
+    batch_index = index if isinstance(index, tuple) else (index,)
+    batch_index = tuple(torch.tensor(i) if isinstance(i, list) else i for i in batch_index)
+    expected_batch = torch.empty(3, 4)[batch_index].shape
+    assert actual.batch_shape == expected_batch
+    if Ellipsis in batch_index:  # ... covers the batch dimensions only, not a field's own
+        at = batch_index.index(Ellipsis)
+        batch_index = (
+            batch_index[:at] + (slice(None),) * (3 - len(batch_index)) + batch_index[at + 1 :]
+        )
+    _assert_fields(actual, {name: getattr(c, name)[batch_index] for name in FIELDS})
+    assert (actual.slots, actual.nv) == (2, 5)
+
+
+def test_indexing_matches_per_row_contacts_and_keeps_missing_fields():
+    c = random_contacts(3, 4, batch=(5,))
+    bare = Contacts(**_fields(c))
+    rows = bare[torch.tensor([4, 1])]
+    assert rows.frame is None and rows.position is None
+    for k, i in enumerate((4, 1)):
+        assert torch.equal(rows[k].dual_rows(4)[0], c[i].dual_rows(4)[0])
+
+
+@pytest.mark.parametrize(
+    "batch, index",
+    [
+        ((), 0),
+        ((5,), (0, 1)),
+        ((5,), (Ellipsis, 0, 0)),
+        ((5,), (Ellipsis, 0, Ellipsis)),
+        ((5,), torch.ones(5, 3, dtype=torch.bool)),
+    ],
+)
+def test_indexing_beyond_the_batch_dimensions_raises(batch, index):
+    c = random_contacts(3, 4, batch=batch)
+    with pytest.raises(IndexError, match=f"index must address only the {len(batch)} batch"):
+        c[index]
+
+
+def test_stack_and_cat_join_along_batch_dimensions():
+    items = [random_contacts(3, 4, batch=(2,)) for _ in range(3)]
+    for dim, at in ((0, 0), (1, 1), (-1, 1), (-2, 0)):
+        stacked = Contacts.stack(items, dim=dim)
+        assert stacked.batch_shape == ((3, 2) if at == 0 else (2, 3))
+        _assert_fields(
+            stacked, {n: torch.stack([getattr(c, n) for c in items], at) for n in FIELDS}
+        )
+    joined = Contacts.cat([items[0], items[1][:1]])
+    assert joined.batch_shape == (3,)
+    _assert_fields(
+        joined, {n: torch.cat([getattr(items[0], n), getattr(items[1], n)[:1]]) for n in FIELDS}
+    )
+    grid = Contacts.stack(items, dim=1)
+    assert Contacts.cat([grid, grid], dim=-1).batch_shape == (2, 6)
+    scalar = Contacts.stack([random_contacts(2, 4), random_contacts(2, 4)])
+    assert scalar.batch_shape == (2,)
+    _assert_fields(Contacts.stack(list(scalar)), {n: getattr(scalar, n) for n in FIELDS})
+
+
+def test_stack_and_cat_reject_mismatched_items():
+    a = random_contacts(3, 4, batch=(2,))
+    with pytest.raises(ValueError, match="items must share slots and nv"):
+        Contacts.stack([a, random_contacts(2, 4, batch=(2,))])
+    with pytest.raises(ValueError, match="items must share slots and nv"):
+        Contacts.cat([a, random_contacts(3, 5, batch=(2,))])
+    with pytest.raises(ValueError, match="items must all carry frame"):
+        Contacts.cat([a, Contacts(**_fields(a))])
+    with pytest.raises(ValueError, match="items must share a batch shape"):
+        Contacts.stack([a, a[:1]])
+    with pytest.raises(ValueError, match="items must share the batch shape but for dim"):
+        Contacts.cat([Contacts.stack([a, a]), a])
+    with pytest.raises(ValueError, match="items must have a batch dimension"):
+        Contacts.cat([a[0], a[1]])
+    with pytest.raises(ValueError, match="items must be a non-empty sequence"):
+        Contacts.stack([])
+    with pytest.raises(ValueError, match=r"dim must be an integer in \[-2, 1\]"):
+        Contacts.stack([a, a], dim=2)
+    with pytest.raises(ValueError, match="dim must be an integer"):
+        Contacts.cat([a, a], dim=1)
+
+
+def test_contacts_are_a_pytree():
+    from torch.utils import _pytree as pytree
+
+    c = random_contacts(3, 4, batch=(2,))
+    leaves, spec = pytree.tree_flatten(c)
+    assert len(leaves) == 7
+    doubled = pytree.tree_unflatten([2 * x for x in leaves], spec)
+    assert isinstance(doubled, Contacts) and torch.equal(doubled.phi, 2 * c.phi)
+    bare_leaves, _ = pytree.tree_flatten(Contacts(**_fields(c)))
+    assert len(bare_leaves) == 5  # absent frame and position are no leaves
+    assert pytree.tree_flatten_with_path(c)[0][0][0] == (pytree.GetAttrKey("phi"),)
+
+
+def test_vmap_over_contacts_matches_the_batched_velocity():
+    """``torch.func.vmap`` maps a function of one step's contacts over a batch of them."""
+    from torchcontact import cf_velocity, validate_args
+
+    contacts = random_contacts(3, 6, batch=(5,), inactive=1)
+    Q = torch.rand(6, dtype=torch.float64) + 1.0
+    b = torch.randn(5, 6, dtype=torch.float64)
+
+    def velocity(c: Contacts, b: torch.Tensor) -> torch.Tensor:
+        jac, phi, _ = c.dual_rows(4)
+        return cf_velocity(Q, b, jac, phi, 0.1, 200.0)
+
+    with validate_args(False):  # value checks read tensors, which vmap cannot
+        mapped = torch.func.vmap(velocity)(contacts, b)
+    torch.testing.assert_close(mapped, velocity(contacts, b), rtol=1e-12, atol=1e-12)
+    assert mapped.shape == (5, 6)
+    bare = Contacts(**_fields(contacts))  # without frame and position
+    with validate_args(False):
+        torch.testing.assert_close(torch.func.vmap(velocity)(bare, b), mapped, rtol=0, atol=0)

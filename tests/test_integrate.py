@@ -186,3 +186,70 @@ def test_scalar_and_integer_inputs_are_rejected():
 def test_unknown_joint_raises():
     with pytest.raises(ValueError, match="joints"):
         JointLayout(["free", "planar"])
+
+
+def test_named_blocks_slice_q_and_v():
+    layout = JointLayout(["free", "ball", "hinge", "slide"], blocks={"object": 1, "arm": 3})
+    assert (layout.q_slice("object"), layout.v_slice("object")) == (slice(0, 7), slice(0, 6))
+    assert (layout.q_slice("arm"), layout.v_slice("arm")) == (slice(7, 13), slice(6, 11))
+    q = torch.arange(2 * layout.nq, dtype=torch.float64).reshape(2, layout.nq)
+    v = torch.arange(2 * layout.nv, dtype=torch.float64).reshape(2, layout.nv)
+    assert torch.equal(layout.block(q, "arm"), q[:, 7:])
+    assert torch.equal(layout.block_velocity(v, "object"), v[:, :6])
+    assert torch.equal(layout.object_pose(q), q[:, :7])
+    assert repr(layout) == "JointLayout(['free', 'ball', 'hinge', 'slide'], " + (
+        "blocks={'object': 1, 'arm': 3})"
+    )
+
+
+def test_default_block_is_all_joints():
+    layout = joint_layout(MODEL)
+    assert layout.blocks == {"all": 7}
+    assert (layout.q_slice("all"), layout.v_slice("all")) == (slice(0, 25), slice(0, 21))
+    assert repr(JointLayout(["slide"])) == "JointLayout(['slide'])"
+
+
+def test_manipulation_layout_is_the_object_then_the_robot():
+    layout = JointLayout.manipulation(["hinge"] * 9)
+    assert layout.joints == ("free",) + ("hinge",) * 9
+    assert layout.blocks == {"object": 1, "robot": 9}
+    q = torch.randn(3, 5, 16)
+    assert torch.equal(layout.object_pose(q), q[..., :7])
+    assert torch.equal(layout.robot(q), q[..., 7:])
+    assert layout.v_slice("robot") == slice(6, 15)
+
+
+def test_blocks_do_not_change_the_integration():
+    joints = ["free", "hinge", "hinge"]
+    q, v = torch.randn(4, 9, dtype=torch.float64), torch.randn(4, 8, dtype=torch.float64)
+    plain = integrate(q, v, 0.05, JointLayout(joints))
+    assert torch.equal(integrate(q, v, 0.05, JointLayout.manipulation(joints[1:])), plain)
+
+
+@pytest.mark.parametrize(
+    "blocks, message",
+    [
+        ({"object": 1, "robot": 1}, "blocks must count all 3 joints"),
+        ({"object": 1, "robot": -1, "rest": 3}, r"blocks\['robot'\] must be"),
+        ({"object": 1.0, "robot": 2}, r"blocks\['object'\] must be"),
+        ({1: 3}, "blocks must be named by strings"),
+        ([("object", 3)], "blocks must map"),
+    ],
+)
+def test_bad_blocks_raise_naming_the_argument(blocks, message):
+    with pytest.raises(ValueError, match=message):
+        JointLayout(["free", "hinge", "hinge"], blocks=blocks)
+
+
+def test_missing_or_wrong_blocks_raise():
+    layout = JointLayout(["hinge", "free"], blocks={"robot": 1, "object": 1})
+    with pytest.raises(ValueError, match="name must be a block among"):
+        layout.q_slice("hand")
+    with pytest.raises(ValueError, match="q must have shape"):
+        layout.robot(torch.zeros(7))
+    with pytest.raises(ValueError, match="v must have shape"):
+        layout.block_velocity(torch.zeros(6), "robot")
+    assert torch.equal(layout.object_pose(torch.arange(8.0)), torch.arange(1.0, 8.0))
+    for joints, blocks in ((["ball", "hinge"], {"object": 1, "robot": 1}), (["free"], None)):
+        with pytest.raises(ValueError, match="block 'object' of one free joint"):
+            JointLayout(joints, blocks).object_pose(torch.zeros(JointLayout(joints).nq))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
@@ -16,7 +18,6 @@ from torchcontact.sim.hands import (
     HandEnv,
     scene_contact_slots,
 )
-from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import object_names
 
 
@@ -117,15 +118,26 @@ def test_state_layout_reset_and_target(cube_env):
         cube_env.reset(pose, joints=np.zeros(3))
 
 
-def test_fingertip_sites_match_pytorch_kinematics_in_the_scene(cube_env):
+def test_fingertip_sites_match_the_hands_robot_in_the_scene(cube_env):
     hand = cube_env.hand
-    fk = FingertipKinematics(hand.mjcf, hand.tips)
+    fk = hand.robot()
     rng = np.random.default_rng(0)
     for _ in range(3):
         joints = np.array(hand.initial_joints) + rng.uniform(-0.2, 0.2, hand.n_joints)
         cube_env.reset(cube_env.state()[:7], joints=joints)
         tips = fk(torch.as_tensor(joints)).numpy()
         np.testing.assert_allclose(tips, cube_env.fingertips(), atol=1e-6)
+
+
+def test_hands_read_their_joints_and_tips_from_the_mjcf():
+    assert TRIFINGER.n_joints == 9 and TRIFINGER.tips == ("tip0", "tip1", "tip2")
+    assert ALLEGRO.tip_sites is None  # the file's *tip sites, in its order
+    assert ALLEGRO.tips == ("ff_tip", "mf_tip", "rf_tip", "th_tip")
+    assert ALLEGRO.n_joints == 16 == ALLEGRO.robot().n_joints
+    robot = TRIFINGER.robot(torch.float32)
+    assert robot.mjcf == TRIFINGER.mjcf and robot(torch.zeros(9)).dtype == torch.float32
+    with pytest.raises(ValueError, match="initial_joints must have 9"):
+        HandEnv(dataclasses.replace(TRIFINGER, initial_joints=(0.0,) * 3), "cube")
 
 
 def test_the_servo_moves_free_joints_toward_the_command(cube_env):

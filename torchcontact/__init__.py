@@ -4,11 +4,6 @@ The contact layer is pure torch; ``torchcontact.sim`` bridges MuJoCo, ``torchcon
 plans through the model and ``torchcontact.learn`` fits its stiffness from data.
 """
 
-from torchcontact.rendering import select_gl_backend
-
-# pytorch-kinematics imports mujoco, which reads MUJOCO_GL once at import: choose it first.
-select_gl_backend()
-
 from torchcontact.contacts import Contacts, facet_directions
 from torchcontact.functional import cf_multipliers, cf_velocity, softplus
 from torchcontact.integrate import JointLayout, integrate
@@ -20,8 +15,17 @@ from torchcontact.model import (
     RelaxedQP,
     contact_model,
 )
+from torchcontact.networks import ObjectContactNetwork
 from torchcontact.qp import qp_solve
 from torchcontact.relaxed_qp import relaxed_qp_velocity
+from torchcontact.rotations import (
+    quaternion_angle,
+    quaternion_error,
+    quaternion_exp,
+    quaternion_multiply,
+    quaternion_to_matrix,
+    up_axis,
+)
 from torchcontact.stiffness import (
     PARAMETERIZATIONS,
     Constant,
@@ -31,11 +35,13 @@ from torchcontact.stiffness import (
     Relative,
     StateNetwork,
     parameterization,
+    register_parameterization,
 )
-from torchcontact.systems import QuasiDynamic, full_dynamic
+from torchcontact.systems import GRAVITY, QuasiDynamic, full_dynamic
 from torchcontact.validation import set_validate_args, validate_args
 
 __all__ = [
+    "GRAVITY",
     "MODELS",
     "PARAMETERIZATIONS",
     "AnitescuQP",
@@ -45,6 +51,7 @@ __all__ = [
     "ContactNetwork",
     "Contacts",
     "JointLayout",
+    "ObjectContactNetwork",
     "Parameterization",
     "PerRow",
     "QuasiDynamic",
@@ -59,8 +66,15 @@ __all__ = [
     "integrate",
     "parameterization",
     "qp_solve",
+    "quaternion_angle",
+    "quaternion_error",
+    "quaternion_exp",
+    "quaternion_multiply",
+    "quaternion_to_matrix",
+    "register_parameterization",
     "relaxed_qp_velocity",
     "set_validate_args",
     "softplus",
+    "up_axis",
     "validate_args",
 ]

@@ -12,14 +12,6 @@ JOBS = {
         "torchcontact.mpc.evaluate",
         "closed-loop MPC trials in MuJoCo (e.g. run fingertips --task in-air --object cube)",
     ),
-    "box-pushing": (
-        "torchcontact.experiments.box_pushing",
-        "bar pushing N cubes: complementarity-free vs QP, time and prediction gap",
-    ),
-    "full-dynamic": (
-        "torchcontact.experiments.full_dynamic",
-        "full-dynamic settings 1-3: complementarity-free vs QP vs MuJoCo",
-    ),
     "learn-k": (
         "torchcontact.learn.job",
         "learn K(q), D(q) from MuJoCo rollouts; compare with the paper's and the best constant K",

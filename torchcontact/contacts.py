@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
 import torch
+from torch.utils import _pytree as pytree
 
 from torchcontact.validation import check_finite, check_nonnegative, check_shape, check_tensor
 
@@ -41,6 +43,11 @@ def _facet_directions(facets: int, dtype: torch.dtype, device: torch.device) -> 
 @dataclass(frozen=True)
 class Contacts:
     """Contacts of one step, padded to ``nc`` slots; every field shares the batch shape ``...``.
+
+    A batched container: ``contacts[index]`` indexes the batch dimensions of every field,
+    :meth:`stack` and :meth:`cat` join several, and it is a torch pytree, so
+    ``torch.func.vmap`` maps functions of contacts over a batch (with the model's value checks
+    off there, ``validate_args(False)``: vmap cannot read tensor values).
 
     Attributes:
         phi: ``(..., nc)`` signed distance [m], positive when apart.
@@ -155,6 +162,123 @@ class Contacts:
         """``(...)`` number of active contacts."""
         return self.active.sum(-1)
 
+    @classmethod
+    def _unchecked(cls, values: dict[str, torch.Tensor | None]) -> Contacts:
+        """Contacts from fields known to be consistent (derived from valid contacts)."""
+        contacts = object.__new__(cls)
+        for field in fields(cls):
+            object.__setattr__(contacts, field.name, values.get(field.name))
+        return contacts
+
+    def _fields(self) -> dict[str, torch.Tensor | None]:
+        return {field.name: getattr(self, field.name) for field in fields(self)}
+
+    def __getitem__(self, index) -> Contacts:
+        """The contacts at ``index`` of the batch dimensions ``...``, as in ``phi[index]``.
+
+        ``index``: an int, a slice, None, an integer or boolean tensor (or a tuple of them)
+        addressing the batch dimensions only; ``...`` stands for the batch dimensions left.
+        """
+        index = self._batch_index(index)
+        return Contacts._unchecked(
+            {name: None if x is None else x[index] for name, x in self._fields().items()}
+        )
+
+    def _batch_index(self, index) -> tuple:
+        """``index`` as a tuple without Ellipsis, checked to address the batch dims only."""
+        items = list(index) if isinstance(index, tuple) else [index]
+        used = 0
+        for i, item in enumerate(items):
+            if item is None or item is Ellipsis or isinstance(item, bool):
+                continue  # None and True/False add a dimension, ... is filled in below
+            if not isinstance(item, (torch.Tensor, slice)) and not hasattr(item, "__index__"):
+                try:  # a list, range or array of indices or of bools
+                    items[i] = item = torch.as_tensor(item)
+                except (TypeError, ValueError, RuntimeError):
+                    raise IndexError(
+                        f"index must hold ints, slices, None, ... or tensors, got {item!r}"
+                    ) from None
+            is_mask = isinstance(item, torch.Tensor) and item.dtype == torch.bool
+            used += item.dim() if is_mask else 1
+        batch = len(self.batch_shape)
+        ellipses = items.count(Ellipsis)
+        if ellipses > 1 or used > batch:
+            raise IndexError(
+                f"index must address only the {batch} batch dimensions "
+                f"{tuple(self.batch_shape)} (and hold at most one ...), got {index!r}"
+            )
+        if ellipses:
+            at = items.index(Ellipsis)
+            items[at : at + 1] = [slice(None)] * (batch - used)
+        return tuple(items)
+
+    @staticmethod
+    def _check_joinable(items: Sequence[Contacts]) -> list[Contacts]:
+        items = list(items)
+        if not items or not all(isinstance(c, Contacts) for c in items):
+            raise ValueError("items must be a non-empty sequence of Contacts")
+        first = items[0]
+        for c in items[1:]:
+            if (c.slots, c.nv) != (first.slots, first.nv):
+                raise ValueError(
+                    f"items must share slots and nv, got {(first.slots, first.nv)} and "
+                    f"{(c.slots, c.nv)}: pad them with Contacts.padded first"
+                )
+            for name in ("frame", "position"):
+                if (getattr(c, name) is None) != (getattr(first, name) is None):
+                    raise ValueError(f"items must all carry {name} or all lack it")
+        return items
+
+    @classmethod
+    def _join(cls, items: list[Contacts], join) -> Contacts:
+        """Contacts whose every field is ``join`` of the items' fields."""
+        return cls._unchecked(
+            {
+                name: None if x is None else join([getattr(c, name) for c in items])
+                for name, x in items[0]._fields().items()
+            }
+        )
+
+    @staticmethod
+    def _join_dim(dim: int, batch: int) -> int:
+        if isinstance(dim, bool) or not isinstance(dim, int) or not -batch - 1 <= dim <= batch:
+            raise ValueError(f"dim must be an integer in [{-batch - 1}, {batch}], got {dim!r}")
+        return dim + batch + 1 if dim < 0 else dim
+
+    @classmethod
+    def stack(cls, items: Sequence[Contacts], dim: int = 0) -> Contacts:
+        """Stack contacts of one batch shape ``B`` along a new batch dimension ``dim``.
+
+        ``items`` must share ``slots``, ``nv``, the batch shape and which optional fields they
+        carry (:meth:`padded` evens out the slots). Negative ``dim`` counts from the end of the
+        new batch shape, as in ``torch.stack``.
+        """
+        items = cls._check_joinable(items)
+        batch = items[0].batch_shape
+        if any(c.batch_shape != batch for c in items):
+            shapes = [tuple(c.batch_shape) for c in items]
+            raise ValueError(f"items must share a batch shape to be stacked, got {shapes}")
+        at = cls._join_dim(dim, len(batch))
+        return cls._join(items, lambda tensors: torch.stack(tensors, at))
+
+    @classmethod
+    def cat(cls, items: Sequence[Contacts], dim: int = 0) -> Contacts:
+        """Concatenate contacts along the existing batch dimension ``dim``.
+
+        ``items`` must share ``slots``, ``nv``, the other batch dimensions and which optional
+        fields they carry. Negative ``dim`` counts from the end of the batch shape.
+        """
+        items = cls._check_joinable(items)
+        batch = len(items[0].batch_shape)
+        if batch == 0:
+            raise ValueError("items must have a batch dimension to be concatenated along")
+        at = cls._join_dim(dim, batch - 1)
+        rest = {c.batch_shape[:at] + c.batch_shape[at + 1 :] for c in items}
+        if len(rest) != 1 or any(len(c.batch_shape) != batch for c in items):
+            shapes = [tuple(c.batch_shape) for c in items]
+            raise ValueError(f"items must share the batch shape but for dim {dim}, got {shapes}")
+        return cls._join(items, lambda tensors: torch.cat(tensors, at))
+
     def to(self, *args, **kwargs) -> Contacts:
         """Move/cast the floating fields like ``Tensor.to``; ``active`` keeps its bool dtype."""
 
@@ -202,3 +326,31 @@ class Contacts:
         normal = beta.sum(-1)
         friction = self.mu.unsqueeze(-1) * (beta @ directions)
         return normal, friction
+
+
+def _present(contacts: Contacts) -> list[str]:
+    return [field.name for field in fields(Contacts) if getattr(contacts, field.name) is not None]
+
+
+def _flatten(contacts: Contacts) -> tuple[list[torch.Tensor], tuple[str, ...]]:
+    names = _present(contacts)
+    return [getattr(contacts, name) for name in names], tuple(names)
+
+
+def _flatten_with_keys(contacts: Contacts) -> tuple[list, tuple[str, ...]]:
+    names = _present(contacts)
+    return [(pytree.GetAttrKey(name), getattr(contacts, name)) for name in names], tuple(names)
+
+
+def _unflatten(values, names: tuple[str, ...]) -> Contacts:
+    # Unchecked: inside vmap the leaves are batched tensors, whose values cannot be read.
+    return Contacts._unchecked(dict(zip(names, values, strict=True)))
+
+
+pytree.register_pytree_node(
+    Contacts,
+    _flatten,
+    _unflatten,
+    serialized_type_name="torchcontact.contacts.Contacts",
+    flatten_with_keys_fn=_flatten_with_keys,
+)

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import torch
-from pytorch_kinematics.transforms import quaternion_raw_multiply
 
 from torchcontact.functional import Scalar
+from torchcontact.rotations import quaternion_exp, quaternion_multiply
 from torchcontact.validation import check_shape, check_tensor
 
 JOINT_SIZES = {"free": (7, 6), "ball": (4, 3), "slide": (1, 1), "hinge": (1, 1)}
@@ -15,19 +15,28 @@ JOINT_SIZES = {"free": (7, 6), "ball": (4, 3), "slide": (1, 1), "hinge": (1, 1)}
 
 
 class JointLayout:
-    """The joints of q in order, e.g. ``JointLayout(["free", "slide", "slide", "slide"])``.
+    """The joints of q in order, grouped into named blocks of consecutive joints.
 
     Free joints: position (3) then quaternion (w, x, y, z) in q; linear velocity in the world
     frame then angular velocity in the body frame in v. Ball joints: a quaternion and a
     body-frame angular velocity. Slide and hinge joints: one coordinate each.
+
+    Args:
+        joints: joint types in order, each among :data:`JOINT_SIZES`, e.g.
+            ``["free", "slide", "slide", "slide"]``.
+        blocks: block name → number of consecutive joints, in the joints' order, the counts
+            summing to ``len(joints)``, e.g. ``{"object": 1, "robot": 9}``; None: one block
+            ``"all"`` of every joint. :meth:`manipulation` builds the object-then-robot layout.
+            Kept in ``layout.blocks`` (read it, do not change it).
     """
 
-    def __init__(self, joints: Sequence[str]):
+    def __init__(self, joints: Sequence[str], blocks: Mapping[str, int] | None = None):
         unknown = [j for j in joints if j not in JOINT_SIZES]
         if unknown:
             raise ValueError(f"joints must be among {sorted(JOINT_SIZES)}, got {unknown}")
         self.joints = tuple(joints)
         linear_q, linear_v, quat_q, angular_v = [], [], [], []
+        starts = [(0, 0)]  # (q, v) offset of every joint, then (nq, nv)
         iq = iv = 0
         for joint in self.joints:
             if joint in ("slide", "hinge"):
@@ -45,6 +54,7 @@ class JointLayout:
                 )
             dq, dv = JOINT_SIZES[joint]
             iq, iv = iq + dq, iv + dv
+            starts.append((iq, iv))
         self.nq, self.nv = iq, iv
         self.linear_q = torch.tensor(linear_q, dtype=torch.long)
         self.linear_v = torch.tensor(linear_v, dtype=torch.long)
@@ -52,20 +62,84 @@ class JointLayout:
         self.angular_v = torch.tensor(angular_v, dtype=torch.long).reshape(-1, 3)
         order = torch.cat([self.linear_q, self.quat_q.flatten()])
         self.assemble = torch.argsort(order)
+        self.blocks = _check_blocks(blocks, len(self.joints))
+        self._joint_ranges, self._q_slices, self._v_slices = {}, {}, {}
+        first = 0
+        for name, count in self.blocks.items():
+            (q0, v0), (q1, v1) = starts[first], starts[first + count]
+            self._joint_ranges[name] = range(first, first + count)
+            self._q_slices[name], self._v_slices[name] = slice(q0, q1), slice(v0, v1)
+            first += count
+
+    @classmethod
+    def manipulation(cls, robot_joints: Sequence[str]) -> JointLayout:
+        """The object's free joint, then ``robot_joints``: blocks ``"object"`` and ``"robot"``."""
+        robot_joints = list(robot_joints)
+        return cls(["free", *robot_joints], blocks={"object": 1, "robot": len(robot_joints)})
+
+    def _block_name(self, name: str) -> str:
+        if name not in self.blocks:
+            raise ValueError(f"name must be a block among {list(self.blocks)}, got {name!r}")
+        return name
+
+    def q_slice(self, name: str) -> slice:
+        """The coordinates of block ``name`` in q ``(nq,)``."""
+        return self._q_slices[self._block_name(name)]
+
+    def v_slice(self, name: str) -> slice:
+        """The velocities of block ``name`` in v ``(nv,)``."""
+        return self._v_slices[self._block_name(name)]
+
+    def block(self, q: torch.Tensor, name: str) -> torch.Tensor:
+        """Block ``name`` of ``q: (..., nq)``, a view ``(..., nq_block)``."""
+        check_shape("q", q, f"(..., {self.nq})", q.dim() >= 1 and q.shape[-1] == self.nq)
+        return q[..., self.q_slice(name)]
+
+    def block_velocity(self, v: torch.Tensor, name: str) -> torch.Tensor:
+        """Block ``name`` of ``v: (..., nv)``, a view ``(..., nv_block)``."""
+        check_shape("v", v, f"(..., {self.nv})", v.dim() >= 1 and v.shape[-1] == self.nv)
+        return v[..., self.v_slice(name)]
+
+    def object_pose(self, q: torch.Tensor) -> torch.Tensor:
+        """The object's pose ``(..., 7)``, position [m] then quaternion, of ``q: (..., nq)``.
+
+        Needs a block ``"object"`` made of a single free joint.
+        """
+        joints = [self.joints[i] for i in self._joint_ranges.get("object", ())]
+        if joints != ["free"]:
+            raise ValueError(
+                f"layout must have a block 'object' of one free joint, got blocks {self.blocks} "
+                f"of joints {list(self.joints)}"
+            )
+        return self.block(q, "object")
+
+    def robot(self, q: torch.Tensor) -> torch.Tensor:
+        """The robot's coordinates ``(..., nq_robot)`` of ``q: (..., nq)`` (block ``"robot"``)."""
+        return self.block(q, "robot")
 
     def __repr__(self) -> str:
-        return f"JointLayout({list(self.joints)})"
+        if self.blocks == {"all": len(self.joints)}:
+            return f"JointLayout({list(self.joints)})"
+        return f"JointLayout({list(self.joints)}, blocks={self.blocks})"
 
 
-def quaternion_exp(rotation: torch.Tensor) -> torch.Tensor:
-    """Unit quaternion of the rotation vector ``rotation: (..., 3)`` [rad], smooth at zero.
-
-    Uses ``sinc`` so the value and the gradient are exact at a zero rotation (where
-    ``pytorch_kinematics``' axis-angle conversion has a 0/0 in its gradient).
-    """
-    angle = torch.linalg.vector_norm(rotation, dim=-1, keepdim=True)
-    half_sinc = 0.5 * torch.sinc(angle / (2 * torch.pi))  # sin(θ/2)/θ
-    return torch.cat([torch.cos(0.5 * angle), rotation * half_sinc], dim=-1)
+def _check_blocks(blocks: Mapping[str, int] | None, n_joints: int) -> dict[str, int]:
+    """``blocks`` as a dict, checked to split ``n_joints`` joints; None: one block ``"all"``."""
+    if blocks is None:
+        return {"all": n_joints}
+    if not isinstance(blocks, Mapping):
+        raise ValueError(f"blocks must map block names to joint counts, got {blocks!r}")
+    for name, count in blocks.items():
+        if not isinstance(name, str):
+            raise ValueError(f"blocks must be named by strings, got {name!r}")
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise ValueError(f"blocks[{name!r}] must be a non-negative integer, got {count!r}")
+    if sum(blocks.values()) != n_joints:
+        raise ValueError(
+            f"blocks must count all {n_joints} joints, got {dict(blocks)} "
+            f"(summing to {sum(blocks.values())})"
+        )
+    return dict(blocks)
 
 
 def integrate(q: torch.Tensor, v: torch.Tensor, h: Scalar, layout: JointLayout) -> torch.Tensor:
@@ -85,7 +159,7 @@ def integrate(q: torch.Tensor, v: torch.Tensor, h: Scalar, layout: JointLayout) 
     quat = q[..., layout.quat_q.to(device)]
     omega = v[..., layout.angular_v.to(device)]
     step = h.unsqueeze(-1) if isinstance(h, torch.Tensor) and h.dim() > 0 else h
-    rotated = quaternion_raw_multiply(quat, quaternion_exp(step * omega))
+    rotated = quaternion_multiply(quat, quaternion_exp(step * omega))
     rotated = rotated / torch.linalg.vector_norm(rotated, dim=-1, keepdim=True)
     batch = torch.broadcast_shapes(linear.shape[:-1], rotated.shape[:-2])
     pieces = torch.cat([linear.expand(*batch, -1), rotated.expand(*batch, -1, -1).flatten(-2)], -1)

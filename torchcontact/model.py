@@ -9,11 +9,13 @@ differentiable interior-point method.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import nn
 
 from torchcontact.contacts import Contacts
+from torchcontact.frozen import FrozenComplementarityFree, FrozenRelaxedQP
 from torchcontact.functional import (
     Scalar,
     _batch_scalar,
@@ -27,7 +29,7 @@ from torchcontact.relaxed_qp import (
     _check_relaxation,
     relaxed_qp_velocity,
 )
-from torchcontact.stiffness import Parameterization, parameterization
+from torchcontact.stiffness import Constant, Parameterization, Relative, parameterization
 
 
 class ContactModel(nn.Module):
@@ -46,6 +48,15 @@ class ContactModel(nn.Module):
     def impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         """Per-contact impulses: ``normal (..., nc)`` and ``friction (..., nc, 2)`` in (t₁, t₂)."""
         return contacts.impulses(self.row_impulses(Q, b, contacts, h, q)[1], self.facets)
+
+    def freeze(self, contacts: Contacts, h: float, q=None, *, compile: bool = False):
+        """The step at ``contacts`` (unbatched, ``nc`` slots) and state ``q (nq,)`` frozen, for
+        an MPC horizon: an object with ``velocity(Q, b)``, ``advance_gaps(v)``,
+        ``linearized(Q, b)`` and ``traceable`` (see :mod:`torchcontact.frozen`). ``h`` [s];
+        ``compile``: compile the step's inner iterations, where it has any."""
+        raise ValueError(
+            f"{type(self).__name__} cannot be frozen into an MPC: it is not differentiable"
+        )
 
 
 def _check_facets(facets: int) -> int:
@@ -95,6 +106,22 @@ class ComplementarityFree(ContactModel):
         K = self.stiffness(contacts, self.facets, q)
         D = None if self.damping is None else self.damping(contacts, self.facets, q, K)
         return K, D
+
+    def freeze(
+        self, contacts: Contacts, h: float, q=None, *, compile: bool = False
+    ) -> FrozenComplementarityFree:
+        jac, phi, _ = contacts.dual_rows(self.facets)
+        K, D = self.coefficients(contacts, q)
+        normal = contacts.jac_normal * contacts.active.to(phi.dtype).unsqueeze(-1)
+        return FrozenComplementarityFree(
+            jac,
+            phi,
+            K.expand(phi.shape),
+            None if D is None else D.expand(phi.shape),
+            normal.repeat_interleave(self.facets, dim=-2),
+            float(h),
+            self.gamma,
+        )
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         jac, phi, active = contacts.dual_rows(self.facets)
@@ -149,6 +176,14 @@ class RelaxedQP(ContactModel):
         _check_iterations(iterations)
         self.iterations = iterations
 
+    def freeze(
+        self, contacts: Contacts, h: float, q=None, *, compile: bool = False
+    ) -> FrozenRelaxedQP:
+        jac, phi, active = contacts.dual_rows(self.facets)
+        return FrozenRelaxedQP(
+            jac, phi, active, float(h), self.relaxation, self.iterations, compile_steps=compile
+        )
+
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         jac, phi, active = contacts.dual_rows(self.facets)
         return relaxed_qp_velocity(
@@ -159,18 +194,45 @@ class RelaxedQP(ContactModel):
         return f"relaxation={self.relaxation}, facets={self.facets}, iterations={self.iterations}"
 
 
-MODELS: dict[str, type[ContactModel]] = {
+def paper_model(stiffness: float = 1.0) -> ComplementarityFree:
+    """The paper's MPC model: constant K = ``stiffness``, D = 0.1·K (both fixed), γ = 100,
+    n_d = 4."""
+    return ComplementarityFree(
+        stiffness=Constant(stiffness, learnable=False),
+        damping=Relative(0.1, learnable=False),
+        gamma=100.0,
+        facets=4,
+    )
+
+
+MODELS: dict[str, Callable[..., ContactModel]] = {
     "complementarity_free": ComplementarityFree,
+    "paper": paper_model,
     "qp": AnitescuQP,
     "relaxed_qp": RelaxedQP,
 }
+"""Contact models by name: the complementarity-free step (any K, D, γ), its paper
+configuration, the Anitescu QP by OSQP, and the QP with relaxed complementarity."""
+
+
+def register_model(name: str, factory: Callable[..., ContactModel]) -> None:
+    """Make ``contact_model(name, **kw)`` call ``factory(**kw)``; ``name`` must be new."""
+    if not isinstance(name, str) or not name or name in MODELS:
+        raise ValueError(f"name must be a new model name, got {name!r} (taken: {sorted(MODELS)})")
+    if not callable(factory):
+        raise ValueError(f"factory must be callable, got {factory!r}")
+    MODELS[name] = factory
 
 
 def contact_model(name: str, **kwargs) -> ContactModel:
-    """Build a contact model by name: ``"complementarity_free"``, ``"qp"`` or ``"relaxed_qp"``."""
+    """Build a contact model by name (one of :data:`MODELS`), e.g. ``contact_model("paper",
+    stiffness=0.5)``; keyword arguments go to its constructor."""
     if name not in MODELS:
         raise ValueError(f"name must be one of {sorted(MODELS)}, got {name!r}")
-    return MODELS[name](**kwargs)
+    model = MODELS[name](**kwargs)
+    if not isinstance(model, ContactModel):
+        raise ValueError(f"model {name!r} built a {type(model).__name__}, not a ContactModel")
+    return model
 
 
 __all__ = [
@@ -180,4 +242,6 @@ __all__ = [
     "MODELS",
     "RelaxedQP",
     "contact_model",
+    "paper_model",
+    "register_model",
 ]

@@ -3,7 +3,8 @@
 Each is an ``nn.Module`` called as ``param(contacts, facets, q=None, stiffness=None)`` and
 returning a non-negative tensor broadcastable to the row shape ``(..., nc·n_d)``. Pick one by
 name with :func:`parameterization` (``"constant"``, ``"per_row"``, ``"contact_network"``,
-``"state_network"``, ``"relative"``) or pass a float for a constant.
+``"state_network"``, ``"relative"``, ``"object_contact_network"``) or pass a float for a
+constant; :func:`register_parameterization` adds a name.
 """
 
 from __future__ import annotations
@@ -164,6 +165,24 @@ PARAMETERIZATIONS: dict[str, type[Parameterization]] = {
     "state_network": StateNetwork,
     "relative": Relative,
 }
+"""Parameterizations by name; :mod:`torchcontact.networks` adds ``"object_contact_network"``."""
+
+
+def register_parameterization(name: str, cls: type[Parameterization]) -> type[Parameterization]:
+    """Make ``cls`` buildable by ``name`` in :func:`parameterization`; returns ``cls``.
+
+    ``name`` must be a new non-empty string and ``cls`` a subclass of :class:`Parameterization`.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty string, got {name!r}")
+    if name in PARAMETERIZATIONS:
+        raise ValueError(
+            f"name must be new, got {name!r} (taken by {PARAMETERIZATIONS[name].__name__})"
+        )
+    if not (isinstance(cls, type) and issubclass(cls, Parameterization)):
+        raise ValueError(f"cls must be a subclass of Parameterization, got {cls!r}")
+    PARAMETERIZATIONS[name] = cls
+    return cls
 
 
 def parameterization(

@@ -9,6 +9,9 @@ from torch import nn
 
 from torchcontact.validation import check_finite, check_positive, check_shape, check_tensor
 
+GRAVITY = 9.8
+"""Standard gravity g [m/s²], the paper's value: an object of mass m [kg] weighs m·g [N]."""
+
 
 def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
     x = torch.as_tensor(value)

@@ -1,2 +1,52 @@
 """Environment descriptions: a robot, its object's plant, the model's system, cost, tasks and
-presets, one registered instance per environment (``fingertips``, ``trifinger``, ``allegro``)."""
+presets, one registered instance per environment (``fingertips``, ``trifinger``, ``allegro``).
+
+``environment("trifinger")`` returns the registered description; a user's robot becomes one
+with :func:`~torchcontact.environments.custom.from_mjcf` and, to run it by name,
+:func:`register_environment`.
+"""
+
+import functools
+
+from torchcontact.environments.base import Environment
+from torchcontact.environments.fingertips import FINGERTIPS
+from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV
+
+ENVIRONMENTS: dict[str, Environment] = {
+    env.name: env for env in (FINGERTIPS, TRIFINGER_ENV, ALLEGRO_ENV)
+}
+"""The registered environments by name."""
+
+
+def register_environment(env: Environment) -> Environment:
+    """Register ``env`` under ``env.name`` (which must be new); returns it."""
+    if not isinstance(env, Environment):
+        raise ValueError(f"env must be an Environment, got {type(env).__name__}")
+    if env.name in ENVIRONMENTS:
+        raise ValueError(f"env.name must be new, got {env.name!r} (taken: {list(ENVIRONMENTS)})")
+    ENVIRONMENTS[env.name] = env
+    return env
+
+
+def environment(
+    name: str, robot: str | None = None, tips: tuple[str, ...] | None = None
+) -> Environment:
+    """The registered environment ``name`` (one of :data:`ENVIRONMENTS`), or with ``robot``
+    (an MJCF path) the user robot of :func:`~torchcontact.environments.custom.from_mjcf`
+    with fingertip sites ``tips`` (None: the file's sites named ``*tip``), named ``name``."""
+    if robot is not None:
+        return _custom(name, str(robot), None if tips is None else tuple(tips))
+    if name not in ENVIRONMENTS:
+        raise ValueError(f"env must be one of {sorted(ENVIRONMENTS)}, got {name!r}")
+    return ENVIRONMENTS[name]
+
+
+@functools.lru_cache(maxsize=8)
+def _custom(name: str, robot: str, tips: tuple[str, ...] | None) -> Environment:
+    """A user robot's environment, built once per process."""
+    from torchcontact.environments.custom import from_mjcf
+
+    return from_mjcf(robot, tips, name=name)
+
+
+__all__ = ["ENVIRONMENTS", "Environment", "environment", "register_environment"]

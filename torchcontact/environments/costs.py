@@ -6,20 +6,18 @@ fingertips are world positions ``tips (..., n_tips, 3)`` [m], from forward kinem
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import torch
-from pytorch_kinematics.transforms import quaternion_to_matrix
+
+from torchcontact.rotations import quaternion_error, quaternion_to_matrix, up_axis
 
 
 def position_cost(p: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """``‖p − p*‖²`` [m²], shape ``(...)``."""
     return (p - target).square().sum(-1)
-
-
-def quaternion_cost(quat: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """``1 − ⟨q, q*⟩²`` = sin²(θ/2) of the rotation between them, in [0, 1], shape ``(...)``."""
-    return 1.0 - (quat * target).sum(-1).square()
 
 
 def contact_cost(p: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
@@ -33,12 +31,6 @@ def grasp_cost(p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor) -> torch
     directions = offsets / offsets.square().sum(-1, keepdim=True).clamp_min(1e-12).sqrt()
     in_object_frame = directions @ quaternion_to_matrix(quat)  # rows dᵢᵀR = (Rᵀdᵢ)ᵀ
     return in_object_frame.sum(-2).square().sum(-1)
-
-
-def up_axis(quat: torch.Tensor) -> torch.Tensor:
-    """``R(q) ẑ (..., 3)``: the body's z axis in the world, for quaternions ``(..., 4)``."""
-    w, x, y, z = quat.unbind(-1)
-    return torch.stack((2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)), -1)
 
 
 def tilt_cost(quat: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -111,9 +103,80 @@ class ManipulationCost:
             path = path + self.tilt * tilt_cost(quats[..., 1:, :], target).sum(-1)
         final = self.position * position_cost(
             positions[..., -1, :], target_position
-        ) + self.orientation * quaternion_cost(quats[..., -1, :], target_quat)
+        ) + self.orientation * quaternion_error(quats[..., -1, :], target_quat)
         total = path + self.final * final
         if self.tip_height is not None:
             bound = height_bound_cost(tips[..., 1:, :, :], *self.tip_height).sum(-1)
             total = total + self.tip_height_weight * bound
         return total
+
+
+class Cost(Protocol):
+    """The MPC cost protocol: any callable with this signature plugs in (by duck typing).
+
+    Called with ``positions (..., T+1, 3)`` [m] and ``quats (..., T+1, 4)`` of the object over
+    a planned rollout (q₀…q_T), ``tips (..., T+1, n_tips, 3)`` [m], ``controls (..., T, n_u)``
+    and the target ``target_position (..., 3)`` [m], ``target_quat (..., 4)``; returns the
+    total cost ``(...)``, rows independent. It must be differentiable (``torch.func.grad``)
+    and, to be compiled into the planner, free of host syncs and data-dependent branches.
+    """
+
+    def __call__(
+        self,
+        positions: torch.Tensor,
+        quats: torch.Tensor,
+        tips: torch.Tensor,
+        controls: torch.Tensor,
+        target_position: torch.Tensor,
+        target_quat: torch.Tensor,
+    ) -> torch.Tensor: ...
+
+
+@dataclass(frozen=True)
+class PushingCost:
+    """A pusher's cost: the nearest tip behind the object on the line to the goal, then the goal.
+
+    c = contact·minᵢ‖tipᵢ − (p − standoff·d̂)‖² + control·‖u‖², with d̂ the unit horizontal
+    direction from the object to its target; V = final·(position·‖p − p*‖² +
+    orientation·(1 − ⟨q, q*⟩²)). Unlike :class:`ManipulationCost`, whose tips are all pulled to
+    the object's centre (a grasp), one tip is pulled to where it pushes the object goalward and
+    the others are free to keep out of its way.
+
+    Attributes:
+        standoff: distance [m] behind the object's centre the tips aim at (about its
+            half-width plus a tip radius).
+    """
+
+    standoff: float = 0.04
+    contact: float = 1.0
+    control: float = 10.0
+    position: float = 500.0
+    orientation: float = 0.0
+    final: float = 10.0
+
+    def __call__(self, positions, quats, tips, controls, target_position, target_quat):
+        p = positions[..., :-1, :]
+        ahead = (target_position.unsqueeze(-2) - p) * p.new_tensor([1.0, 1.0, 0.0])
+        direction = ahead / ahead.square().sum(-1, keepdim=True).clamp_min(1e-12).sqrt()
+        behind = p - self.standoff * direction
+        nearest = (tips[..., :-1, :, :] - behind.unsqueeze(-2)).square().sum(-1).amin(-1)
+        path = (self.contact * nearest + self.control * controls.square().sum(-1)).sum(-1)
+        final = self.position * position_cost(positions[..., -1, :], target_position)
+        if self.orientation:
+            final = final + self.orientation * quaternion_error(quats[..., -1, :], target_quat)
+        return path + self.final * final
+
+
+COSTS: dict[str, Callable[..., Cost]] = {
+    "manipulation": ManipulationCost,
+    "pushing": PushingCost,
+}
+"""Costs by name: grasp-style manipulation (the paper's) and pushing; keyword arguments are
+their weights."""
+
+
+def cost(name: str, **weights) -> Cost:
+    """The cost registered as ``name`` (one of :data:`COSTS`) with ``weights``."""
+    if name not in COSTS:
+        raise ValueError(f"cost must be one of {sorted(COSTS)}, got {name!r}")
+    return COSTS[name](**weights)

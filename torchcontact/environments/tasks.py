@@ -273,13 +273,19 @@ def quat_from_axis_angle(axis, angle: float) -> np.ndarray:
 
 
 def quaternion_error(quat, target_quat) -> np.ndarray:
-    """``e = 1 − ⟨q, q*⟩²`` (= sin²(θ/2)) for unit quaternions ``(..., 4)``; 0 when aligned."""
+    """``e = 1 − ⟨q, q*⟩²`` (= sin²(θ/2)) for unit quaternions ``(..., 4)``; 0 when aligned.
+
+    The NumPy form of :func:`torchcontact.rotations.quaternion_error` for the success test and
+    the trial records, kept in NumPy: for one quaternion, NumPy's scalar ``dot**2`` (``pow``)
+    and ``arccos`` differ from torch's in the last bit now and then, and the records must not.
+    """
     dot = np.sum(np.asarray(quat, dtype=float) * np.asarray(target_quat, dtype=float), axis=-1)
     return 1.0 - dot**2
 
 
 def angle_error(quat, target_quat) -> np.ndarray:
-    """Rotation angle θ = arccos(2⟨q, q*⟩² − 1) [deg] between unit quaternions ``(..., 4)``."""
+    """Rotation angle θ = arccos(2⟨q, q*⟩² − 1) [deg] between unit quaternions ``(..., 4)``
+    (the NumPy form of :func:`torchcontact.rotations.quaternion_angle`, in degrees)."""
     cosine = 1.0 - 2.0 * quaternion_error(quat, target_quat)
     return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
 

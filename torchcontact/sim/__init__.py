@@ -1,5 +1,10 @@
 """The MuJoCo bridge: the only package of torchcontact that imports ``mujoco``."""
 
+from torchcontact.sim.rendering import select_gl_backend
+
+# mujoco reads MUJOCO_GL once, when first imported: choose the backend before any sim import.
+select_gl_backend()
+
 from torchcontact.sim.detect import ContactDetector
 from torchcontact.sim.dynamics import bias_force, joint_layout, mass_matrix
 from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
@@ -28,4 +33,5 @@ __all__ = [
     "make_object",
     "mass_matrix",
     "object_names",
+    "select_gl_backend",
 ]

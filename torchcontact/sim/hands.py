@@ -2,9 +2,9 @@
 
 A scene is the shared ground, object and goal marker (:func:`~torchcontact.sim.scene.scene_spec`)
 with the robot's MJCF from ``torchcontact.assets`` attached under the prefix ``robot/`` and
-the world frame unchanged, so the fingertip sites of the file are the scene's (and
-:class:`~torchcontact.sim.kinematics.FingertipKinematics` built from the same file agrees with
-them). State ``q = (object position 3, quaternion 4, joints n)``; one :meth:`HandEnv.step`
+the world frame unchanged, so the fingertip sites of the file are the scene's (and the
+:class:`~torchcontact.sim.robot.Robot` read from the same file, :meth:`Hand.robot`, agrees
+with them). State ``q = (object position 3, quaternion 4, joints n)``; one :meth:`HandEnv.step`
 holds the joint set point ``q_des = q + u`` for ``frame_skip`` MuJoCo substeps.
 """
 
@@ -12,15 +12,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import mujoco
 import numpy as np
+import torch
 
 from torchcontact.assets import asset_path
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
 from torchcontact.sim.objects import OBJECT_SIZES, ObjectMesh
 from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
+from torchcontact.sim.robot import Robot
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
 ROBOT_PREFIX = "robot/"
@@ -49,10 +52,12 @@ class ObjectOverride:
 class Hand:
     """A robot hand and the plant settings of its experiments (TASKS.md).
 
+    The robot itself (its joints, fingertip sites and kinematics) is read from the MJCF
+    ``asset``: :meth:`robot`, :attr:`n_joints`, :attr:`tips`.
+
     Attributes:
         name: ``"trifinger"`` or ``"allegro"``.
         asset: its MJCF in ``torchcontact.assets``.
-        tips: fingertip site names in that file.
         initial_joints: joint configuration at the start of every trial [rad].
         frame_skip: MuJoCo substeps per step.
         servo: ``"pd"``: the file's motors apply ``τ = kp(q_des − q) − kd q̇ + bias`` every
@@ -71,11 +76,12 @@ class Hand:
         contact_margin: detection distance [m] of the MPC's contacts (ours; the paper's is 0):
             object pairs this close enter the contact rows with their gap φ > 0, so the model
             sees a touch coming instead of a fingertip passing through the object.
+        tip_sites: fingertip site names in the file; None takes the file's sites named
+            ``*tip`` (see :meth:`~torchcontact.sim.robot.Robot.from_mjcf`).
     """
 
     name: str
     asset: str
-    tips: tuple[str, ...]
     initial_joints: tuple[float, ...]
     frame_skip: int
     servo: str
@@ -92,6 +98,7 @@ class Hand:
     object_mass: float = 0.01
     object_overrides: dict[str, ObjectOverride] = field(default_factory=dict)
     contact_margin: float = 0.0
+    tip_sites: tuple[str, ...] | None = None
 
     def override(self, obj) -> ObjectOverride:
         """The overrides of built-in object ``obj`` (none for other names and meshes)."""
@@ -113,9 +120,28 @@ class Hand:
             mass = _chosen(override.mass, self.object_mass)
         return resolve_object(obj, object_size, mass, override.size, collision)
 
+    def robot(
+        self, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
+    ) -> Robot:
+        """The hand as a :class:`~torchcontact.sim.robot.Robot` read from its MJCF: fingertips
+        ``(..., n_tips, 3)`` [m] of ``joints (..., n_joints)`` [rad]."""
+        return Robot.from_mjcf(self.mjcf, self.tip_sites, dtype=dtype, device=device)
+
+    @cached_property
+    def _description(self) -> tuple[int, tuple[str, ...]]:
+        """The file's joint count and fingertip sites, read once."""
+        robot = self.robot()
+        return robot.n_joints, robot.tips
+
     @property
     def n_joints(self) -> int:
-        return len(self.initial_joints)
+        """The robot's joint count, from its MJCF."""
+        return self._description[0]
+
+    @property
+    def tips(self) -> tuple[str, ...]:
+        """Fingertip site names in the MJCF (``tip_sites``, or the file's ``*tip`` sites)."""
+        return self._description[1]
 
     @property
     def mjcf(self) -> Path:
@@ -137,7 +163,6 @@ def _scaled(obj: str, factor: float) -> tuple[float, float, float]:
 TRIFINGER = Hand(
     name="trifinger",
     asset="trifinger.xml",
-    tips=("tip0", "tip1", "tip2"),
     initial_joints=(0.0, -0.7, -1.1) * 3,
     frame_skip=20,
     servo="pd",
@@ -151,12 +176,12 @@ TRIFINGER = Hand(
     # tips hovering just off an object left the MPC without rows to push with: with 5 mm the
     # learned-K sweep's final errors fell from 10.4 mm / 11.2° to 7.1 mm / 7.8° (docs/journal.md)
     contact_margin=0.005,
+    tip_sites=("tip0", "tip1", "tip2"),  # the file's sites are tip0..tip2, not named *tip
 )
 
 ALLEGRO = Hand(
     name="allegro",
     asset="allegro_right_hand.xml",
-    tips=("ff_tip", "mf_tip", "rf_tip", "th_tip"),
     initial_joints=(
         0.125,
         1.13,
@@ -267,6 +292,11 @@ class HandEnv(Plant):
             hand = HANDS[hand]
         if hand.servo not in SERVOS:
             raise ValueError(f"hand.servo must be one of {SERVOS}, got {hand.servo!r}")
+        if len(hand.initial_joints) != hand.n_joints:
+            raise ValueError(
+                f"hand.initial_joints must have {hand.n_joints} values (the joints of "
+                f"{hand.asset}), got {len(hand.initial_joints)}"
+            )
         if overflow not in OVERFLOW_POLICIES:
             raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
         if not (math.isfinite(timestep) and timestep > 0):

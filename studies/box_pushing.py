@@ -10,18 +10,8 @@ QP solved by OSQP. At every state of both rollouts both models predict ``v⁺`` 
     v = model(Q, b, contacts, h)            # ComplementarityFree or AnitescuQP   ← timed
     q = integrate(q, v, h, scene.layout)    # q ⊕ h v⁺
 
-Scene choices (:class:`BoxPushingConfig`): 5 cm cubes of 1 g, 1 cm apart, μ = 0.5, detection
-margin 5 mm, the exact ``max(·, 0)`` in the CF model. K = 1 N/m acts per row, so the cube mass
-decides how the contacts behave: the explicit CF update is stable only when
-``K·λmax(J̃Q⁻¹J̃ᵀ) < 2`` with ``Q = εM/h²``; for a resting cube the stiffest (tilting) mode gives
-2.9 at 0.3 g (the cube then rocks with period 2), 1.9 at 0.6 g and 0.9–1.2 at 1 g (on the
-ground, in the row). Heavier cubes sink: 0.1 kg would rest 6 cm deep, and 20 of them would
-outweigh the bar's ``Kᵣ|u| = 0.5 N`` in friction. The softplus of the paper's MPC (γ = 100)
-gives every row a floor of ``log 2/γ ≈ 7 mN``, enough to lift 1 g cubes off the ground, hence
-the exact max. The price of one K for every row: a resting cube sits 0.5 mm deep
-(``φ = gh²/ε − mg/(16K)``), and the bar's push crosses each face pair through only 16 rows, so
-the bar sinks 4 mm into a single cube and up to 2.5 cm into a row of 10–20, where the QP does
-not penetrate. CLI: ``python -m torchcontact.experiments.box_pushing --help``.
+The scene, its constants and why the cubes weigh 1 g: :mod:`torchcontact.sim.box_pushing`.
+Run ``python benchmarks/box_pushing.py --help``.
 """
 
 from __future__ import annotations
@@ -29,224 +19,32 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from studies import report
 from torchcontact.contacts import Contacts
-from torchcontact.integrate import JointLayout, integrate
+from torchcontact.integrate import integrate
 from torchcontact.model import AnitescuQP, ComplementarityFree, ContactModel
-from torchcontact.results import save_figure, write_csv, write_json
-from torchcontact.sim import ContactDetector, joint_layout
+from torchcontact.rotations import quaternion_angle
+from torchcontact.sim.box_pushing import DTYPE, BoxPushingConfig, BoxPushingScene, build_scene
 from torchcontact.stiffness import Constant
-from torchcontact.systems import QuasiDynamic
 from torchcontact.validation import validate_args
 
 SWEEP = (1, 5, 10, 15, 20)
 """Cube counts of the paper's timing comparison."""
 
-DTYPE = torch.float64
 
 TIMED_REGION = (
     "the call model(Q, b, contacts, h) -> v+ (dual-cone rows, K, lambda or the OSQP solve, v+), "
     "under torch.inference_mode() with value checks off; not detection, not integration"
 )
-
-
-@dataclass(frozen=True)
-class BoxPushingConfig:
-    """The experiment's constants; the model ones (h, ε, Kᵣ, K, u) are the paper's.
-
-    Attributes:
-        cubes: number of cubes N in the row.
-        steps: time steps of each rollout.
-        h: time step [s].
-        epsilon: ε of the object metric ``εMₒ/h²``.
-        robot_stiffness: Kᵣ of the bar [N/m].
-        contact_stiffness: K of every dual-cone row [N/m].
-        push: bar displacement command u per step [m] (negative: towards −x).
-        edge: cube edge length [m].
-        mass: cube mass [kg] (the module docstring says why 1 g).
-        gap: distance between neighbouring cubes, and between the bar and the first cube [m].
-        mu: friction coefficient of every contact.
-        margin: detection margin of the cube geoms [m]; MuJoCo adds the margins of a pair, so
-            contacts are seen from 5 mm (ground, bar) and 10 mm (cube–cube), more than the
-            1 mm a step moves.
-        gamma: softplus sharpness of the CF model; None for the exact ``max(·, 0)``.
-        facets: friction-cone facets per contact.
-        qp_settings: OSQP settings of the QP baseline, over the library's
-            (:data:`torchcontact.qp.OSQP_SETTINGS`). 1e-10 ends in "solved inaccurate" at
-            10 cubes; 1e-6 keeps v⁺ within ~2e-4 m/s of the 1e-10 solution.
-        warmup: first steps of each rollout left out of the timing medians.
-    """
-
-    cubes: int = 10
-    steps: int = 1000
-    h: float = 0.02
-    epsilon: float = 40.0
-    robot_stiffness: float = 500.0
-    contact_stiffness: float = 1.0
-    push: float = -0.001
-    edge: float = 0.05
-    mass: float = 1e-3
-    gap: float = 0.01
-    mu: float = 0.5
-    margin: float = 0.005
-    gamma: float | None = None
-    facets: int = 4
-    qp_settings: dict = field(default_factory=lambda: {"eps_abs": 1e-6, "eps_rel": 1e-6})
-    warmup: int = 5
-
-    def __post_init__(self) -> None:
-        for name in ("cubes", "steps"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if not isinstance(self.warmup, int) or self.warmup < 0:
-            raise ValueError(f"warmup must be a non-negative integer, got {self.warmup!r}")
-        for name in ("h", "epsilon", "robot_stiffness", "contact_stiffness", "edge", "mass"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-        for name in ("gap", "mu", "margin"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
-        if not math.isfinite(self.push):
-            raise ValueError(f"push must be finite, got {self.push!r}")
-
-    @property
-    def slots(self) -> int:
-        """Contact slots, 12 per cube: 4 ground corners and up to 8 points of the face pair
-        towards +x (the bar or the previous cube).
-
-        MuJoCo gives a face-to-face box pair 4 contacts, 6 when the faces are slightly offset
-        (seen in the QP rollouts) and at most 8; the detector raises if they are not enough.
-        """
-        return 12 * self.cubes
-
-
-def scene_xml(config: BoxPushingConfig) -> str:
-    """MJCF of the scene: ground plane, cubes ``cube0…`` in a row along −x, then the bar.
-
-    The cubes come first in the body order, so q = (cube₀ position, quaternion, …, bar x) and
-    v = (cube₀ linear, angular, …, bar ẋ). Collision bits keep the bar off the ground: the bar
-    touches only cubes.
-    """
-    half = config.edge / 2
-    pitch = config.edge + config.gap
-    cubes = "\n".join(
-        f'    <body name="cube{i}" pos="{-i * pitch:.6f} 0 {half:.6f}">\n'
-        f"      <freejoint/>\n"
-        f'      <geom type="box" size="{half} {half} {half}" mass="{config.mass}"'
-        f' contype="3" conaffinity="3" rgba="0.8 0.5 0.2 1"/>\n'
-        f"    </body>"
-        for i in range(config.cubes)
-    )
-    bar_half = (0.01, 1.5 * config.edge, 0.8 * half)  # thickness, width, height (halves) [m]
-    bar_x = half + config.gap + bar_half[0]
-    return f"""<mujoco model="box_pushing">
-  <option timestep="{config.h}"/>
-  <worldbody>
-    <geom name="ground" type="plane" size="2 2 0.1" contype="1" conaffinity="1"/>
-{cubes}
-    <body name="bar" pos="{bar_x:.6f} 0 {half:.6f}">
-      <joint name="bar" type="slide" axis="1 0 0"/>
-      <geom type="box" size="{bar_half[0]} {bar_half[1]} {bar_half[2]:.6f}" mass="1"
-            contype="2" conaffinity="2" rgba="0.3 0.3 0.8 1"/>
-    </body>
-  </worldbody>
-</mujoco>
-"""
-
-
-@dataclass
-class BoxPushingScene:
-    """Everything a rollout needs.
-
-    Attributes:
-        config: the constants.
-        model: the MuJoCo model (geometry and kinematics only; MuJoCo never steps it).
-        detector: cube contacts (cube–ground, cube–cube, cube–bar) in ``config.slots`` slots.
-        layout: joint layout of q (N free joints, then the bar's slide joint).
-        Q: ``(nv,)`` diagonal metric ``(εMₒ/h², Kᵣ)`` in v order [N/m, N·m/rad].
-        b: ``(nv,)`` linear term ``(m·g on each cube's z, Kᵣu)`` [N]; constant, as u is.
-        q0: ``(nq,)`` initial configuration, the cubes resting on the ground.
-        cube_q: ``(N, 7)`` indices of each cube's position and quaternion in q.
-        bar_q: index of the bar's x in q.
-        linear_v: indices in v of the cubes' linear velocities and of the bar's.
-        angular_v: indices in v of the cubes' angular velocities.
-        system: the quasi-dynamic system ``u ↦ (Q, b)`` (float64).
-    """
-
-    config: BoxPushingConfig
-    model: mujoco.MjModel
-    detector: ContactDetector
-    layout: JointLayout
-    Q: torch.Tensor
-    b: torch.Tensor
-    q0: torch.Tensor
-    cube_q: torch.Tensor
-    bar_q: int
-    linear_v: torch.Tensor
-    angular_v: torch.Tensor
-    system: QuasiDynamic
-
-
-def build_scene(config: BoxPushingConfig) -> BoxPushingScene:
-    """Compile the scene; its quasi-dynamic system gives ``Q = diag(εMₒ/h², Kᵣ)`` and ``b``.
-
-    Mₒ is each cube's mass on its 3 translations and its principal inertia on its 3 body-frame
-    rotations, as MuJoCo computes them from the geometry.
-    """
-    model = mujoco.MjModel.from_xml_string(scene_xml(config))
-    cube_bodies = [f"cube{i}" for i in range(config.cubes)]
-    cube_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in cube_bodies]
-    joints = [int(model.body_jntadr[i]) for i in cube_ids]
-    dofs = torch.tensor([[int(model.jnt_dofadr[j]) + k for k in range(6)] for j in joints])
-    bar_joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "bar")
-    bar_dof = int(model.jnt_dofadr[bar_joint])
-    masses = model.body_mass[cube_ids]  # (N,) [kg]
-    inertia = model.body_inertia[cube_ids]  # (N, 3) [kg·m²]
-    metric = np.concatenate([np.repeat(masses[:, None], 3, 1), inertia], 1)
-    gravity = np.concatenate([masses[:, None] * model.opt.gravity, np.zeros((len(masses), 3))], 1)
-    system = QuasiDynamic(
-        object_metric=(config.epsilon / config.h**2 * metric).reshape(-1),
-        robot_stiffness=config.robot_stiffness,
-        object_force=gravity.reshape(-1),
-        object_dofs=dofs.flatten().tolist(),
-        n_robot=1,
-    ).to(DTYPE)
-    Q, b = system(torch.tensor([config.push], dtype=DTYPE))
-    detector = ContactDetector(
-        model,
-        bodies=cube_bodies,
-        slots=config.slots,
-        mu=config.mu,
-        margin=config.margin,
-        dtype=DTYPE,
-    )
-    return BoxPushingScene(
-        config=config,
-        model=model,
-        detector=detector,
-        layout=joint_layout(model),
-        Q=Q,
-        b=b,
-        q0=torch.from_numpy(model.qpos0.copy()).to(DTYPE),
-        cube_q=torch.tensor([[int(model.jnt_qposadr[j]) + k for k in range(7)] for j in joints]),
-        bar_q=int(model.jnt_qposadr[bar_joint]),
-        linear_v=torch.cat([dofs[:, :3].flatten(), torch.tensor([bar_dof])]),
-        angular_v=dofs[:, 3:].flatten(),
-        system=system,
-    )
 
 
 def contact_model(name: str, config: BoxPushingConfig) -> ContactModel:
@@ -350,12 +148,6 @@ def _median_ms(*runs: Sequence[float], warmup: int) -> float:
     return 1e3 * statistics.median(timed)
 
 
-def _angle_deg(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Angle [deg] between unit quaternions ``(..., 4)``: θ = arccos(2⟨a, b⟩² − 1)."""
-    dot = (a * b).sum(-1)
-    return torch.rad2deg(torch.arccos((2 * dot**2 - 1).clamp(-1.0, 1.0)))
-
-
 def run(config: BoxPushingConfig, progress: bool = True) -> dict:
     """Both rollouts for one cube count; the measured figures as a JSON-ready dict.
 
@@ -376,6 +168,7 @@ def run(config: BoxPushingConfig, progress: bool = True) -> dict:
     qp_ms = _median_ms(by_cf.other_s, by_qp.driver_s, warmup=warmup)
     final_cf, final_qp = by_cf.q[-1, scene.cube_q], by_qp.q[-1, scene.cube_q]  # (N, 7)
     x0 = scene.q0[scene.cube_q[:, 0]]
+    angle_deg = torch.rad2deg(quaternion_angle(final_cf[:, 3:], final_qp[:, 3:]))  # (N,)
 
     def height_error(r: Rollout) -> float:  # max |z − edge/2| of any cube [m]
         return float((r.q[:, scene.cube_q[:, 2]] - config.edge / 2).abs().max())
@@ -397,7 +190,7 @@ def run(config: BoxPushingConfig, progress: bool = True) -> dict:
         "linear_v_diff_median_qp_states": statistics.median(by_qp.linear_diff),
         "angular_v_diff_max_qp_states": max(by_qp.angular_diff),
         "final_position_diff_max": float((final_cf[:, :3] - final_qp[:, :3]).norm(dim=-1).max()),
-        "final_angle_diff_max_deg": float(_angle_deg(final_cf[:, 3:], final_qp[:, 3:]).max()),
+        "final_angle_diff_max_deg": float(angle_deg.max()),
         "cube_dx_mean_cf": float((final_cf[:, 0] - x0).mean()),
         "cube_dx_mean_qp": float((final_qp[:, 0] - x0).mean()),
         "bar_dx_cf": float(by_cf.q[-1, scene.bar_q] - scene.q0[scene.bar_q]),
@@ -449,20 +242,12 @@ def _cells(result: dict) -> list[str]:
 
 def format_table(results: Sequence[dict]) -> str:
     """A plain-text table of the main figures, one row per cube count."""
-    rows = [list(HEADER)] + [_cells(r) for r in results]
-    widths = [max(len(row[i]) for row in rows) for i in range(len(HEADER))]
-    return "\n".join(
-        "  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows
-    )
+    return report.format_table(HEADER, [_cells(r) for r in results])
 
 
 def _summary(result: dict) -> dict:
     """The scalar figures (no trajectories); a φ of +inf (no such contact) becomes None."""
-    return {
-        k: None if isinstance(v, float) and math.isinf(v) else v
-        for k, v in result.items()
-        if k != "trajectories"
-    }
+    return report.json_ready({k: v for k, v in result.items() if k != "trajectories"})
 
 
 def write_outputs(
@@ -481,20 +266,17 @@ def write_outputs(
         "torch_threads": torch.get_num_threads(),
     }
     payload = {**summaries[0], **meta} if len(summaries) == 1 else {"runs": summaries, **meta}
-    write_json(paths["json"], payload)
-    write_csv(paths["csv"], summaries)
+    report.write_json(paths["json"], payload)
+    report.write_csv(paths["csv"], summaries)
     plot(paths["plot"], results)
 
 
 def plot(path: Path, results: Sequence[dict]) -> None:
     """Time per step against N (CF, QP, detection), and the cube x-trajectories of the
     largest N, CF (solid) against QP (dashed)."""
-    import matplotlib
+    from matplotlib import colormaps
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (timing, paths) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, (timing, paths) = report.figure(1, 2, size=(11, 4.2))
     cubes = [r["cubes"] for r in results]
     for key, label, style in (
         ("cf_ms_median", "CF (closed form)", "o-"),
@@ -509,7 +291,7 @@ def plot(path: Path, results: Sequence[dict]) -> None:
     largest = max(results, key=lambda r: r["cubes"])
     x_cf = np.asarray(largest["trajectories"]["x_cf"])
     x_qp = np.asarray(largest["trajectories"]["x_qp"])
-    colors = plt.cm.viridis(np.linspace(0, 0.9, x_cf.shape[1]))
+    colors = colormaps["viridis"](np.linspace(0, 0.9, x_cf.shape[1]))
     for i, color in enumerate(colors):
         paths.plot(x_cf[:, i], color=color, lw=1.2)
         paths.plot(x_qp[:, i], color=color, lw=1.2, ls="--")
@@ -519,73 +301,45 @@ def plot(path: Path, results: Sequence[dict]) -> None:
     paths.grid(True, alpha=0.3)
     paths.legend()
     fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    report.save_figure(fig, path)
 
 
 # --- command line ---------------------------------------------------------------------------
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
-    return value
-
-
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The options: ``--cubes`` (default the sweep), ``--steps``, ``--mass``, ``--qp-eps``,
+    the output paths and ``--threads``."""
     defaults = BoxPushingConfig()
-    parser = argparse.ArgumentParser(
-        prog="box_pushing",
-        description="Box pushing: CF vs QP (OSQP) predictions and time per step.",
+    parser = report.parser(
+        "box_pushing",
+        "Box pushing: CF vs QP (OSQP) predictions and time per step.",
+        "results/box_pushing",
+    )
+    positive_int, positive_float = report.positive_int, report.positive_float
+    parser.add_argument("--cubes", type=positive_int, help=f"cube count N (default {SWEEP})")
+    parser.add_argument(
+        "--steps", type=positive_int, default=defaults.steps, help="steps per rollout (1000)"
     )
     parser.add_argument(
-        "--cubes", type=_positive_int, help=f"cube count N (default: the sweep {SWEEP})"
-    )
-    parser.add_argument(
-        "--steps", type=_positive_int, default=defaults.steps, help="steps per rollout (1000)"
-    )
-    parser.add_argument(
-        "--mass", type=_positive_float, default=defaults.mass, help="cube mass [kg] (0.001)"
+        "--mass", type=positive_float, default=defaults.mass, help="cube mass [kg] (0.001)"
     )
     parser.add_argument(
         "--qp-eps",
-        type=_positive_float,
+        type=positive_float,
         default=defaults.qp_settings["eps_abs"],
         help="OSQP eps_abs = eps_rel of the QP baseline (1e-6)",
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results/box_pushing"),
-        help="folder of the outputs not given a path (results/box_pushing)",
     )
     parser.add_argument("--json", type=Path, help="default OUT/box_pushing.json")
     parser.add_argument("--csv", type=Path, help="default OUT/box_pushing.csv")
     parser.add_argument("--plot", type=Path, help="default OUT/box_pushing.png")
-    parser.add_argument("--threads", type=_positive_int, default=1, help="torch threads")
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch threads")
     return parser.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one cube count (``--cubes``) or the sweep, print the table, write JSON/CSV/PNG.
-
-    Returns the exit status 0 (the ``torchcontact box-pushing`` command passes it on).
-    """
+    """Run one cube count (``--cubes``) or the sweep, print the table, write JSON/CSV/PNG;
+    returns the exit status 0."""
     args = parse_args(argv)
     torch.set_num_threads(args.threads)
     counts = [args.cubes] if args.cubes is not None else list(SWEEP)
@@ -605,9 +359,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "plot": args.plot or args.out / "box_pushing.png",
     }
     write_outputs(outputs, results, configs[0])
-    print("wrote " + ", ".join(str(p) for p in outputs.values()), file=sys.stderr)
+    report.written(outputs.values())
     return 0
 
 
 if __name__ == "__main__":
-    main()
+    report.run_main(main)

@@ -10,10 +10,10 @@ import math
 import pytest
 import torch
 
-from torchcontact.experiments import box_pushing as bp
-from torchcontact.learn import tradeoff as to
+from studies import model_tradeoff as to
 from torchcontact.learn.evaluate import one_step_error, rollout_error
 from torchcontact.learn.fit import StepData, constant_model
+from torchcontact.sim import box_pushing as bp
 
 ERRORS = [f"{g}_{k}" for g in ("one_step", "h10") for k in ("pos_mm", "angle_deg", "combined")]
 TRAJECTORY = [f"traj_{k}" for k in ("pos_mm", "angle_deg", "combined")]

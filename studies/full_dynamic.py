@@ -50,13 +50,12 @@ the slip sees a closing speed μ|v_t| and pushes along ``n + μd``, so a sliding
 (and a ceiling inside the margin pushes back) as in the QP, over a sheath of about
 ``(h + D/K)·μ|v_t|``. Small D removes the lift but leaves only viscous friction.
 
-Run ``python -m torchcontact.experiments.full_dynamic --help``.
+Run ``python benchmarks/full_dynamic.py --help``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
@@ -67,17 +66,15 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from studies import report
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import AnitescuQP, ComplementarityFree, ContactModel
-from torchcontact.results import atomic_write, save_figure, write_csv
 from torchcontact.sim import ContactDetector, bias_force, joint_layout, mass_matrix
 from torchcontact.stiffness import Constant
 from torchcontact.systems import full_dynamic
 from torchcontact.validation import validate_args
 
 DTYPE = torch.float64
-GRAVITY = 9.81
-"""[m/s²], the scenes' gravity magnitude (along −z)."""
 
 SETTLE_SPEED = 0.01
 """[m/s] speed bound below which the cube counts as settled."""
@@ -103,10 +100,11 @@ def sphere_between_planes_xml(
     radius: float, mass: float, gap: float, mu: float, h: float, cone: str, integrator: str
 ) -> str:
     """MJCF: a sphere on three slide joints (x, y, z) resting on a floor, a ceiling ``gap`` [m]
-    above its top. qpos = the sphere's displacement from its resting centre (0, 0, radius)."""
+    above its top. qpos = the sphere's displacement from its resting centre (0, 0, radius).
+    Gravity is MuJoCo's default (:func:`gravity` reads it back)."""
     ceiling = 2 * radius + gap
     return f"""<mujoco model="sphere_between_planes">
-  <option timestep="{h}" gravity="0 0 -{GRAVITY}" integrator="{integrator}" cone="{cone}"/>
+  <option timestep="{h}" integrator="{integrator}" cone="{cone}"/>
   <default><geom condim="3" friction="{mu} 0 0"/></default>
   <worldbody>
     <geom name="floor" type="plane" size="2 2 0.1"/>
@@ -125,10 +123,11 @@ def sphere_between_planes_xml(
 def cube_on_ground_xml(
     edge: float, mass: float, inertia: float, mu: float, h: float, cone: str, integrator: str
 ) -> str:
-    """MJCF: a cube on a free joint above a ground plane; its pose is set through qpos."""
+    """MJCF: a cube on a free joint above a ground plane; its pose is set through qpos.
+    Gravity is MuJoCo's default (:func:`gravity` reads it back)."""
     half = edge / 2
     return f"""<mujoco model="cube_on_ground">
-  <option timestep="{h}" gravity="0 0 -{GRAVITY}" integrator="{integrator}" cone="{cone}"/>
+  <option timestep="{h}" integrator="{integrator}" cone="{cone}"/>
   <default><geom condim="3" friction="{mu} 0 0"/></default>
   <worldbody>
     <geom name="ground" type="plane" size="2 2 0.1"/>
@@ -465,10 +464,16 @@ def sphere_metrics(scene: Scene, trajectory: Trajectory) -> dict:
     }
 
 
-def coulomb_acceleration(setting: Setting) -> float:
-    """(F − μmg)/m [m/s²]: a sphere sliding on the floor alone under Coulomb friction."""
-    mass = SPHERE["mass"]
-    return (setting.force[0] - setting.mu * mass * GRAVITY) / mass
+def gravity(scene: Scene) -> float:
+    """g [m/s²]: the magnitude of the scene's gravity, MuJoCo's own (``model.opt.gravity``)."""
+    return float(np.linalg.norm(scene.model.opt.gravity))
+
+
+def coulomb_acceleration(scene: Scene) -> float:
+    """(F − μmg)/m [m/s²]: setting 1's sphere sliding on the floor alone under Coulomb
+    friction."""
+    setting, mass = scene.setting, SPHERE["mass"]
+    return (setting.force[0] - setting.mu * mass * gravity(scene)) / mass
 
 
 def cube_metrics(scene: Scene, trajectory: Trajectory) -> dict:
@@ -575,8 +580,8 @@ def run_setting(setting: Setting, progress: bool = True) -> dict:
     }
     if setting.number == 1:
         result["reference"] = {
-            "coulomb_acceleration": coulomb_acceleration(setting),
-            "coulomb_terminal_vx": coulomb_acceleration(setting) * setting.steps * setting.h,
+            "coulomb_acceleration": coulomb_acceleration(scene),
+            "coulomb_terminal_vx": coulomb_acceleration(scene) * setting.steps * setting.h,
             "qp_sheath_plateau_vx": SPHERE["gap"] / (2 * setting.mu * setting.h),
         }
     result["rest_check"] = {
@@ -607,12 +612,11 @@ def trace_columns(result: dict) -> dict[str, np.ndarray]:
     return columns
 
 
-def write_trace_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
-    """One row per step, one column per entry of ``columns``."""
+def write_trace_csv(path: Path, columns: dict[str, np.ndarray]) -> Path:
+    """One row per step, one column per entry of ``columns`` (each ``(T,)``)."""
     names = list(columns)
-    write_csv(
-        path, (dict(zip(names, row, strict=True)) for row in zip(*columns.values(), strict=True))
-    )
+    rows = (dict(zip(names, row, strict=True)) for row in zip(*columns.values(), strict=True))
+    return report.write_csv(path, rows)
 
 
 AFTER_IMPACT = 0.01
@@ -630,104 +634,119 @@ def _style(label: str, index: int) -> dict:
 
 def plot_setting(path: Path, result: dict) -> None:
     """PNG of one setting: x-velocity and plane gaps (1), or height, v_z and ‖v‖ (2–3)."""
-    from matplotlib.figure import Figure
-
     number = result["setting"]["number"]
     columns = trace_columns(result)
-    labels = list(result["trajectories"])
     if number == 3:  # after the free fall and the impact: the oscillations are the point
         landing = min(m["landing_time"] for m in result["metrics"].values())
         keep = columns["time"] >= landing + AFTER_IMPACT
         columns = {k: v[keep] for k, v in columns.items()}
     time = columns["time"]
     panels = 2 if number == 1 else 3
-    fig = Figure(figsize=(7.5, 2.6 * panels), layout="constrained")
-    axes = fig.subplots(panels, 1, sharex=True)
-    for i, label in enumerate(labels):
-        style = _style(label, i)
-        if number == 1:
-            axes[0].plot(time, columns[f"{label}_vx"], **style)
-            axes[1].plot(time, 1e3 * columns[f"{label}_z"], **style)
-        else:
-            axes[0].plot(time, 1e3 * columns[f"{label}_z"], **style)
-            axes[1].plot(time, columns[f"{label}_vz"], **style)
-            axes[2].plot(time, columns[f"{label}_speed"], **style)
+    fig, axes = report.figure(panels, 1, size=(7.5, 2.6 * panels), sharex=True)
+    fig.set_layout_engine("constrained")
+    traces = [("vx", 1.0), ("z", 1e3)] if number == 1 else [("z", 1e3), ("vz", 1.0), ("speed", 1.0)]
+    for i, label in enumerate(result["trajectories"]):
+        for ax, (name, scale) in zip(axes, traces, strict=True):
+            ax.plot(time, scale * columns[f"{label}_{name}"], **_style(label, i))
     if number == 1:
         reference = result["reference"]["coulomb_acceleration"]
         axes[0].plot(time, reference * time, "k--", lw=0.9, label="(F − μmg)/m · t")
-        axes[0].set_ylabel("x-velocity [m/s]")
         axes[1].axhline(1e3 * SPHERE["gap"], color="k", lw=0.8, ls=":", label="ceiling contact")
         axes[1].axhline(0.0, color="k", lw=0.8, ls="-.", label="floor contact")
-        axes[1].set_ylabel("sphere lift z [mm]")
+        names = ("x-velocity [m/s]", "sphere lift z [mm]")
     else:
-        axes[0].set_ylabel("centre height z [mm]")
-        axes[1].set_ylabel("vertical velocity [m/s]")
-        axes[2].set_ylabel("speed ‖v‖ [m/s]")
-    for ax in axes:
+        names = ("centre height z [mm]", "vertical velocity [m/s]", "speed ‖v‖ [m/s]")
+    for ax, name in zip(axes, names, strict=True):
+        ax.set_ylabel(name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="best")
     axes[-1].set_xlabel("time [s]")
     window = f" (from {time[0]:.2f} s: after the impact)" if number == 3 else ""
     fig.suptitle(f"Setting {number}: {result['setting']['title']}{window}", fontsize=10)
-    save_figure(fig, path, dpi=110)
+    report.save_figure(fig, path, dpi=110)
 
 
-def format_table(result: dict) -> str:
-    """The key numbers of one setting as a text table."""
-    number = result["setting"]["number"]
-    metrics = result["metrics"]
-    if number == 1:
+SPHERE_COLUMNS = ("run", "v_x(end) m/s", "late a m/s²", "floor gap min mm", "ceil gap min mm")
+CUBE_COLUMNS = (
+    "run",
+    "landing s",
+    "excursion mm",
+    "lift-off mm",
+    "penetr. mm",
+    "settle s",
+    "rough |v|",
+    "rough |v_xy|",
+    "vz TV m/s",
+    "vz rev",
+)
+
+
+def _sphere_cells(label: str, m: dict) -> list[str]:
+    return [
+        label,
+        f"{m['terminal_vx']:.3f}",
+        f"{m['late_acceleration']:.3f}",
+        f"{1e3 * m['floor_gap_min']:.2f}",
+        f"{1e3 * m['ceiling_gap_min']:.2f}",
+    ]
+
+
+def _cube_cells(label: str, m: dict) -> list[str]:
+    settle = m["settling_time"]
+    return [
+        label,
+        f"{m['landing_time']:.3f}",
+        f"{1e3 * m['height_excursion']:.2f}",
+        f"{1e3 * m['clearance_max']:.2f}",
+        f"{1e3 * m['penetration_max']:.2f}",
+        "never" if settle is None else f"{settle:.3f}",
+        f"{m['speed_roughness']:.4f}",
+        f"{m['horizontal_roughness']:.4f}",
+        f"{m['vz_variation']:.3f}",
+        f"{m['vz_reversals']:d}",
+    ]
+
+
+def _notes(result: dict) -> list[str]:
+    """The lines under a setting's table: what the columns mean, the references, the rest
+    check."""
+    setting = result["setting"]
+    if setting["number"] == 1:
         ref = result["reference"]
-        header = (
-            f"{'run':10s} {'v_x(end) m/s':>13s} {'late a m/s²':>12s} {'floor gap min mm':>17s}"
-            f" {'ceil gap min mm':>16s}"
-        )
-        rows = [
-            f"{label:10s} {m['terminal_vx']:13.3f} {m['late_acceleration']:12.3f}"
-            f" {1e3 * m['floor_gap_min']:17.2f} {1e3 * m['ceiling_gap_min']:16.2f}"
-            for label, m in metrics.items()
-        ]
         notes = [
             f"Coulomb sliding: a = (F − μmg)/m = {ref['coulomb_acceleration']:.3f} m/s², "
             f"v_x(end) = {ref['coulomb_terminal_vx']:.3f} m/s; "
             f"QP sheath plateau gap/(2μh) = {ref['qp_sheath_plateau_vx']:.3f} m/s"
         ]
     else:
-        header = (
-            f"{'run':10s} {'landing s':>9s} {'excursion mm':>12s} {'lift-off mm':>11s}"
-            f" {'penetr. mm':>10s} {'settle s':>8s} {'rough |v|':>9s} {'rough |v_xy|':>12s}"
-            f" {'vz TV m/s':>9s} {'vz rev':>6s}"
-        )
-
-        def settle(value):
-            return f"{value:8.3f}" if value is not None else f"{'never':>8s}"
-
-        rows = [
-            f"{label:10s} {m['landing_time']:9.3f} {1e3 * m['height_excursion']:12.2f}"
-            f" {1e3 * m['clearance_max']:11.2f} {1e3 * m['penetration_max']:10.2f}"
-            f" {settle(m['settling_time'])} {m['speed_roughness']:9.4f}"
-            f" {m['horizontal_roughness']:12.4f} {m['vz_variation']:9.3f} {m['vz_reversals']:6d}"
-            for label, m in metrics.items()
-        ]
         notes = [
             f"excursion: max centre height above rest (edge/2) after landing; lift-off: max "
             f"clearance of the lowest corner after landing; settle: ‖v‖ + r‖ω‖ < {SETTLE_SPEED}"
             " m/s for good; rough: total variation beyond the net change [m/s] after landing",
         ]
-    setting = result["setting"]
     check = ", ".join(
         f"γ={k.rsplit('_', 1)[1]}: {1e3 * v:.2f} mm" for k, v in result["rest_check"].items()
     )
     duration = setting["steps"] * setting["h"]
     notes.append(f"CF body left at rest, unloaded, floor clearance after {duration:g} s: {check}")
+    return notes
+
+
+def format_table(result: dict) -> str:
+    """The key numbers of one setting as a text table: a title, one row per run, notes."""
+    setting = result["setting"]
+    sphere = setting["number"] == 1
+    cells = _sphere_cells if sphere else _cube_cells
+    rows = [cells(label, m) for label, m in result["metrics"].items()]
+    table = report.format_table(SPHERE_COLUMNS if sphere else CUBE_COLUMNS, rows, left=1)
     ks = ", ".join(f"{k:g}" for k in setting["stiffness"])
     title = (
-        f"Setting {number}: {setting['title']} (h={setting['h']:g} s, μ={setting['mu']:g}, "
-        f"K={ks}, D={setting['damping']:g}, γ={setting['gamma']}, margin={setting['margin']:g} m, "
-        f"{setting['steps']} steps; MuJoCo {setting['mujoco_integrator']}, "
-        f"{setting['mujoco_cone']} cone)"
+        f"Setting {setting['number']}: {setting['title']} (h={setting['h']:g} s, "
+        f"μ={setting['mu']:g}, K={ks}, D={setting['damping']:g}, γ={setting['gamma']}, "
+        f"margin={setting['margin']:g} m, {setting['steps']} steps; MuJoCo "
+        f"{setting['mujoco_integrator']}, {setting['mujoco_cone']} cone)"
     )
-    return "\n".join([title, header, *rows, *notes])
+    return "\n".join([title, table, *_notes(result)])
 
 
 def summary(result: dict) -> dict:
@@ -735,50 +754,52 @@ def summary(result: dict) -> dict:
     return {k: v for k, v in result.items() if k != "trajectories"}
 
 
-def write_outputs(out: Path, results: Sequence[dict], json_path: Path | None, plots: bool) -> None:
+def write_outputs(
+    out: Path, results: Sequence[dict], json_path: Path | None, plots: bool
+) -> list[Path]:
     """Per setting ``setting{n}.csv`` (traces) and ``setting{n}.png``; ``full_dynamic.json``
-    (metrics, constants) in ``out`` and, if given, at ``json_path``."""
+    (metrics, constants) in ``out`` and, if given, at ``json_path``. Returns the paths."""
+    paths = []
     for result in results:
         number = result["setting"]["number"]
-        write_trace_csv(out / f"setting{number}.csv", trace_columns(result))
+        paths.append(write_trace_csv(out / f"setting{number}.csv", trace_columns(result)))
         if plots:
             plot_setting(out / f"setting{number}.png", result)
+            paths.append(out / f"setting{number}.png")
     document = {"settings": [summary(r) for r in results]}
-    text = json.dumps(document, indent=2, allow_nan=False)
-    for path in {out / "full_dynamic.json", *([json_path] if json_path else [])}:
-        atomic_write(path, lambda f: f.write(text + "\n"))
+    for path in dict.fromkeys([out / "full_dynamic.json", *([json_path] if json_path else [])]):
+        paths.append(report.write_json(path, document))
+    return paths
 
 
 # --- command line ---------------------------------------------------------------------------
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m torchcontact.experiments.full_dynamic",
-        description="Full-dynamic settings 1-3 of Jin 2024: complementarity-free vs the "
-        "Anitescu QP vs MuJoCo. Prints the key numbers, writes CSV/PNG per setting and JSON.",
+    """The options: ``--setting``, the overrides of the settings' constants, MuJoCo's cone and
+    integrator, the outputs."""
+    parser = report.parser(
+        "python benchmarks/full_dynamic.py",
+        "Full-dynamic settings 1-3 of Jin 2024: complementarity-free vs the Anitescu QP vs "
+        "MuJoCo. Prints the key numbers, writes CSV/PNG per setting and JSON.",
+        "results/full_dynamic",
     )
+    positive_float = report.positive_float
     parser.add_argument("--setting", choices=["1", "2", "3", "all"], default="all")
-    parser.add_argument("--out", type=Path, default=Path("results/full_dynamic"))
     parser.add_argument("--json", type=Path, default=None, help="also write the JSON here")
     parser.add_argument("--steps", type=int, default=None, help="override every setting's steps")
-    parser.add_argument("--damping", type=float, default=None, help="override D [N·s/m]")
+    parser.add_argument("--damping", type=positive_float, help="override D [N·s/m]")
     parser.add_argument(
-        "--stiffness", type=float, nargs="+", default=None, help="override the K values [N/m]"
+        "--stiffness", type=positive_float, nargs="+", help="override the K values [N/m]"
     )
     parser.add_argument("--gamma", type=float, default=None, help="override γ (0: exact max)")
     parser.add_argument("--mujoco-cone", choices=MUJOCO_CONES, default="pyramidal")
     parser.add_argument("--mujoco-integrator", choices=MUJOCO_INTEGRATORS, default="Euler")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNGs")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     if args.steps is not None and args.steps < 2:
         parser.error(f"--steps must be at least 2, got {args.steps}")
-    if args.damping is not None and not args.damping > 0:
-        parser.error(f"--damping must be positive, got {args.damping}")
-    if args.stiffness is not None and not all(k > 0 for k in args.stiffness):
-        parser.error(f"--stiffness values must be positive, got {args.stiffness}")
-    if args.gamma is not None and args.gamma < 0:
+    if args.gamma is not None and not (math.isfinite(args.gamma) and args.gamma >= 0):
         parser.error(f"--gamma must be non-negative (0: exact max), got {args.gamma}")
     return args
 
@@ -799,7 +820,8 @@ def configured_setting(number: int, args: argparse.Namespace) -> Setting:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the chosen settings, print their tables, write CSV/PNG/JSON under ``--out``."""
+    """Run the chosen settings, print their tables, write CSV/PNG/JSON under ``--out``;
+    returns the exit status 0."""
     args = parse_args(argv)
     numbers = sorted(SETTINGS) if args.setting == "all" else [int(args.setting)]
     results = []
@@ -807,10 +829,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = run_setting(configured_setting(number, args), progress=not args.no_progress)
         print(format_table(result), end="\n\n", flush=True)
         results.append(result)
-    write_outputs(args.out, results, args.json, plots=not args.no_plots)
-    print(f"wrote {args.out}" + (f" and {args.json}" if args.json else ""))
+    report.written(write_outputs(args.out, results, args.json, plots=not args.no_plots))
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    report.run_main(main)

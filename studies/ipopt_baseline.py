@@ -19,7 +19,7 @@ Algorithm 1), the same cost terms and weights, the same control box. As in the p
   dual solution as its start.
 
 The fingertips' tips are coordinates of q; the hands' come from their MJCF through
-:func:`~torchcontact.mpc.casadi_kinematics.casadi_fingertips`, as the paper's code writes its
+:func:`~studies.casadi_kinematics.casadi_fingertips`, as the paper's code writes its
 hands' forward kinematics in CasADi.
 """
 
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from studies.casadi_kinematics import casadi_fingertips
 from torchcontact.contacts import Contacts
 from torchcontact.model import RelaxedQP
-from torchcontact.mpc.casadi_kinematics import casadi_fingertips
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.fingertips import LAYOUT, fingertip_positions
 from torchcontact.mpc.hands import JointFingertips
@@ -85,6 +85,146 @@ def _body_rate_matrix(quat):
     )
 
 
+def _rotation(quat):
+    """R(q/‖q‖) (3, 3, CasADi) of a quaternion (w, x, y, z), as the torch cost's."""
+    import casadi as cs
+
+    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    s = 2 / cs.sumsqr(quat)
+    return cs.vertcat(
+        cs.horzcat(1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)),
+        cs.horzcat(s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)),
+        cs.horzcat(s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)),
+    )
+
+
+def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: str) -> bool:
+    """Refuse what the baseline cannot state, naming the argument; True for a hand's MPC."""
+    if formulation not in FORMULATIONS:
+        raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
+    if isinstance(mpc.model, RelaxedQP):
+        raise ValueError("the IPOPT baseline states the complementarity-free model, not qp")
+    if mpc.gaps != "frozen":
+        raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
+    hand = isinstance(mpc.fingertips, JointFingertips)
+    robot_joints = mpc.layout.joints[1:]
+    if not (
+        (mpc.layout.joints == LAYOUT.joints and mpc.fingertips is fingertip_positions)
+        or (hand and mpc.layout.joints[0] == "free" and set(robot_joints) == {"hinge"})
+    ):
+        raise ValueError("the IPOPT baseline supports the fingertips' and hands' MPCs only")
+    if hand and tip_height is not None:
+        raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")
+    if not isinstance(n_rows, int) or n_rows < 1:
+        raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
+    if not isinstance(max_iter, int) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    if tip_height is not None and not tip_height[0] < tip_height[1]:
+        raise ValueError(f"tip_height must be (low, high) with low < high, got {tip_height}")
+    return hand
+
+
+def _step_function(mpc: ContactImplicitMPC, formulation: str, jac, phi, K, D):
+    """``step(q, u) ↦ q⁺`` (CasADi) of the CF model with the frozen rows ``jac (n_rows, nv)``,
+    ``phi, K, D (n_rows,)``, written the lean way or the reference's way; the quaternion moves
+    by the first-order update ``q + ½h·G(q)ᵀω``."""
+    import casadi as cs
+
+    h, gamma = mpc.h, mpc.model.gamma
+    metric = mpc.system.metric().double().numpy()
+    object_force = mpc.system.object_force.double().numpy()
+    stiffness = mpc.system.robot_stiffness.double().numpy()
+
+    def lean_velocity(u):
+        b = cs.vertcat(cs.DM(object_force), cs.DM(stiffness) * u)
+        free = b / cs.DM(metric)  # Q⁻¹b
+        gap_change = cs.mtimes(jac, free)
+        lam = _softplus(-K * (gap_change + phi) - D * gap_change / h, gamma)
+        return (free + cs.mtimes(jac.T, lam) / cs.DM(metric)) / h
+
+    def reference_velocity(u):  # the same v, written as the paper's code writes it
+        inverse = cs.DM(np.linalg.inv(np.diag(metric)))
+        b = cs.vertcat(cs.DM(object_force), cs.mtimes(cs.DM(np.diag(stiffness)), u))
+        pressure = -K * (cs.mtimes(cs.mtimes(jac, inverse), b) + phi)
+        pressure = pressure - D * cs.mtimes(cs.mtimes(jac, inverse), b) / h
+        lam = cs.log(1 + cs.exp(gamma * pressure)) / gamma
+        return cs.mtimes(inverse, b) / h + cs.mtimes(cs.mtimes(inverse, jac.T), lam) / h
+
+    velocity = lean_velocity if formulation == "lean" else reference_velocity
+
+    def step(q, u):
+        v = velocity(u)
+        quat = q[3:7] + 0.5 * h * cs.mtimes(_body_rate_matrix(q[3:7]).T, v[3:6])
+        return cs.vertcat(q[0:3] + h * v[0:3], quat, q[7:] + h * v[6:])
+
+    return step
+
+
+def _tips_function(mpc: ContactImplicitMPC, hand: bool):
+    """``tips(q) ↦ [p_i (3,)]``: the fingertips' positions (CasADi): coordinates of q for the
+    fingertips, CasADi forward kinematics of the MJCF for a hand."""
+    if not hand:
+        return lambda q: [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
+    kinematics = mpc.fingertips.kinematics
+    forward = casadi_fingertips(kinematics.mjcf, kinematics.tips)
+
+    def tips(q):
+        points = forward(q[7:])
+        return [points[i, :].T for i in range(len(kinematics.tips))]
+
+    return tips
+
+
+def _cost_functions(cost, tips, target_q):
+    """``path_cost(q, u)`` (contact, grasp and control terms, on q₀…q_{T−1}) and
+    ``state_cost(q)`` (tilt and tip-height terms, on q₁…q_T) of the MPC's cost, in CasADi."""
+    import casadi as cs
+
+    def path_cost(q, u):
+        offsets = [tip - q[0:3] for tip in tips(q)]
+        total = cost.contact * sum(cs.sumsqr(o) for o in offsets)
+        if cost.grasp:
+            directions = sum(o / cs.sqrt(cs.fmax(cs.sumsqr(o), 1e-12)) for o in offsets)
+            total += cost.grasp * cs.sumsqr(cs.mtimes(_rotation(q[3:7]).T, directions))
+        return total + cost.control * cs.sumsqr(u)
+
+    def state_cost(q):
+        total = 0
+        if cost.tilt:
+            up, target_up = _rotation(q[3:7])[:, 2], _rotation(target_q)[:, 2]
+            total += cost.tilt * (1 - cs.dot(up, target_up))
+        if cost.tip_height is not None:
+            low, high = cost.tip_height
+            for tip in tips(q):
+                excess = cs.fmax(low - tip[2], 0) ** 2 + cs.fmax(tip[2] - high, 0) ** 2
+                total += cost.tip_height_weight * excess
+        return total
+
+    return path_cost, state_cost
+
+
+def _state_bounds(mpc: ContactImplicitMPC, formulation: str, hand: bool, tip_height):
+    """``(lower, upper)`` bounds ``(T·(n_u + nq),)`` on the decision variables, in their order
+    ``(u₀, q₁, …)``: the control box, and the states' boxes (:class:`IpoptMPC`)."""
+    T, n_u, nq = mpc.horizon, mpc.system.n_robot, mpc.layout.nq
+    lower = mpc.lower.reshape(T, n_u).double().numpy()
+    upper = mpc.upper.reshape(T, n_u).double().numpy()
+    unbounded = np.inf if formulation == "lean" else REFERENCE_BOUND
+    state_low, state_high = np.full(nq, -unbounded), np.full(nq, unbounded)
+    if formulation == "reference" and hand:
+        state_low[:3], state_high[:3] = (-0.99, -0.99, 0.0), (0.99, 0.99, 0.99)
+    elif formulation == "reference":
+        state_low[7:], state_high[7:] = -100.0, 100.0
+        state_low[9::3] = 0.0
+    if tip_height is not None:
+        low, high = tip_height
+        state_low[9::3] = low  # the tips' z: q[9], q[12], q[15]
+        state_high[9::3] = min(high, state_high[9])
+    low = np.concatenate([np.concatenate([lo, state_low]) for lo in lower])
+    high = np.concatenate([np.concatenate([hi, state_high]) for hi in upper])
+    return low, high
+
+
 class IpoptMPC:
     """The MPC problem of ``mpc`` (fingertips or a hand) as a multiple-shooting NLP solved by IPOPT.
 
@@ -113,103 +253,16 @@ class IpoptMPC:
     ):
         import casadi as cs
 
-        if formulation not in FORMULATIONS:
-            raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-
-        if isinstance(mpc.model, RelaxedQP):
-            raise ValueError("the IPOPT baseline states the complementarity-free model, not qp")
-        if mpc.gaps != "frozen":
-            raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
-        hand = isinstance(mpc.fingertips, JointFingertips)
-        robot_joints = mpc.layout.joints[1:]
-        if not (
-            (mpc.layout.joints == LAYOUT.joints and mpc.fingertips is fingertip_positions)
-            or (hand and mpc.layout.joints[0] == "free" and set(robot_joints) == {"hinge"})
-        ):
-            raise ValueError("the IPOPT baseline supports the fingertips' and hands' MPCs only")
-        if hand and tip_height is not None:
-            raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")
-        if not isinstance(n_rows, int) or n_rows < 1:
-            raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
-        if not isinstance(max_iter, int) or max_iter < 1:
-            raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+        hand = _check(mpc, n_rows, max_iter, tip_height, formulation)
         self.mpc, self.n_rows = mpc, n_rows
         nq, nv, n_u, T = mpc.layout.nq, mpc.layout.nv, mpc.system.n_robot, mpc.horizon
-        h, cost, gamma = mpc.h, mpc.cost, mpc.model.gamma
-        metric = mpc.system.metric().double().numpy()
-        object_force = mpc.system.object_force.double().numpy()
-        stiffness = mpc.system.robot_stiffness.double().numpy()
-
+        cost = mpc.cost
         q0 = cs.SX.sym("q0", nq)
         target_p, target_q = cs.SX.sym("target_p", 3), cs.SX.sym("target_q", 4)
         phi, K, D = (cs.SX.sym(name, n_rows) for name in ("phi", "K", "D"))
         jac = cs.SX.sym("jac", n_rows, nv)
-
-        def lean_velocity(u):
-            b = cs.vertcat(cs.DM(object_force), cs.DM(stiffness) * u)
-            free = b / cs.DM(metric)  # Q⁻¹b
-            gap_change = cs.mtimes(jac, free)
-            lam = _softplus(-K * (gap_change + phi) - D * gap_change / h, gamma)
-            return (free + cs.mtimes(jac.T, lam) / cs.DM(metric)) / h
-
-        def reference_velocity(u):  # the same v, written as the paper's code writes it
-            inverse = cs.DM(np.linalg.inv(np.diag(metric)))
-            b = cs.vertcat(cs.DM(object_force), cs.mtimes(cs.DM(np.diag(stiffness)), u))
-            pressure = -K * (cs.mtimes(cs.mtimes(jac, inverse), b) + phi)
-            pressure = pressure - D * cs.mtimes(cs.mtimes(jac, inverse), b) / h
-            lam = cs.log(1 + cs.exp(gamma * pressure)) / gamma
-            return cs.mtimes(inverse, b) / h + cs.mtimes(cs.mtimes(inverse, jac.T), lam) / h
-
-        velocity = lean_velocity if formulation == "lean" else reference_velocity
-
-        def step(q, u):
-            v = velocity(u)
-            quat = q[3:7] + 0.5 * h * cs.mtimes(_body_rate_matrix(q[3:7]).T, v[3:6])
-            return cs.vertcat(q[0:3] + h * v[0:3], quat, q[7:] + h * v[6:])
-
-        if hand:
-            kinematics = mpc.fingertips.kinematics
-            forward = casadi_fingertips(kinematics.mjcf, kinematics.tips)
-
-            def tips(q):
-                points = forward(q[7:])
-                return [points[i, :].T for i in range(len(kinematics.tips))]
-
-        else:
-
-            def tips(q):
-                return [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
-
-        def rotation(quat):  # R(q/‖q‖) of a quaternion (w, x, y, z), as the torch cost's
-            w, x, y, z = quat[0], quat[1], quat[2], quat[3]
-            s = 2 / cs.sumsqr(quat)
-            return cs.vertcat(
-                cs.horzcat(1 - s * (y * y + z * z), s * (x * y - w * z), s * (x * z + w * y)),
-                cs.horzcat(s * (x * y + w * z), 1 - s * (x * x + z * z), s * (y * z - w * x)),
-                cs.horzcat(s * (x * z - w * y), s * (y * z + w * x), 1 - s * (x * x + y * y)),
-            )
-
-        def up(quat):
-            return rotation(quat)[:, 2]
-
-        def path_cost(q, u):  # on q₀…q_{T−1}: contact, grasp and control terms
-            offsets = [tip - q[0:3] for tip in tips(q)]
-            total = cost.contact * sum(cs.sumsqr(o) for o in offsets)
-            if cost.grasp:
-                directions = sum(o / cs.sqrt(cs.fmax(cs.sumsqr(o), 1e-12)) for o in offsets)
-                total += cost.grasp * cs.sumsqr(cs.mtimes(rotation(q[3:7]).T, directions))
-            return total + cost.control * cs.sumsqr(u)
-
-        def state_cost(q):  # on q₁…q_T: the tilt and tip-height terms of ManipulationCost
-            total = 0
-            if cost.tilt:
-                total += cost.tilt * (1 - cs.dot(up(q[3:7]), up(target_q)))
-            if cost.tip_height is not None:
-                low, high = cost.tip_height
-                for tip in tips(q):
-                    excess = cs.fmax(low - tip[2], 0) ** 2 + cs.fmax(tip[2] - high, 0) ** 2
-                    total += cost.tip_height_weight * excess
-            return total
+        step = _step_function(mpc, formulation, jac, phi, K, D)
+        path_cost, state_cost = _cost_functions(cost, _tips_function(mpc, hand), target_q)
 
         w, g, objective, q = [], [], 0, q0
         for _ in range(T):
@@ -238,25 +291,7 @@ class IpoptMPC:
         self.step_function = cs.Function("step", [q, u, rows], [step(q, u)])
         """``(q (nq,), u (n_u,), rows) ↦ q⁺``: the NLP's model step; ``rows`` are the parameter
         vector's entries after the target (:meth:`parameters`)."""
-        lower = mpc.lower.reshape(T, n_u).double().numpy()
-        upper = mpc.upper.reshape(T, n_u).double().numpy()
-        unbounded = np.inf if formulation == "lean" else REFERENCE_BOUND
-        state_low, state_high = np.full(nq, -unbounded), np.full(nq, unbounded)
-        if formulation == "reference" and hand:
-            state_low[:3], state_high[:3] = (-0.99, -0.99, 0.0), (0.99, 0.99, 0.99)
-        elif formulation == "reference":
-            state_low[7:], state_high[7:] = -100.0, 100.0
-            state_low[9::3] = 0.0
-        if tip_height is not None:
-            low, high = tip_height
-            if not low < high:
-                raise ValueError(
-                    f"tip_height must be (low, high) with low < high, got {tip_height}"
-                )
-            state_low[9::3] = low  # the tips' z: q[9], q[12], q[15]
-            state_high[9::3] = min(high, state_high[9])
-        self._lbx = np.concatenate([np.concatenate([lo, state_low]) for lo in lower])
-        self._ubx = np.concatenate([np.concatenate([hi, state_high]) for hi in upper])
+        self._lbx, self._ubx = _state_bounds(mpc, formulation, hand, tip_height)
         self._shape, self._nq = (T, n_u), nq
         self.reset()
 

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
+from studies import mpc_tradeoff as tradeoff
 from torchcontact.environments.presets import PAPER
-from torchcontact.mpc import tradeoff
 from torchcontact.results import pareto_front
 
 EAGER = PAPER.label.replace("compiled", "eager")

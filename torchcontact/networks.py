@@ -7,6 +7,8 @@ turned, and gives each friction facet its own value: per contact the features ar
 ``n`` and the contact point ``p`` (relative to the object's origin) rotated into the
 object's frame, and ``up`` the world's z axis seen from the object; the network outputs
 ``n_d`` positive values, one per facet row.
+
+Registered in :data:`~torchcontact.stiffness.PARAMETERIZATIONS` as ``"object_contact_network"``.
 """
 
 from __future__ import annotations
@@ -14,12 +16,12 @@ from __future__ import annotations
 import math
 
 import torch
-from pytorch_kinematics.transforms import quaternion_to_matrix
 from torch import nn
 from torch.nn import functional as F
 
 from torchcontact.contacts import Contacts
-from torchcontact.stiffness import Parameterization
+from torchcontact.rotations import quaternion_to_matrix
+from torchcontact.stiffness import Parameterization, register_parameterization
 
 
 class ObjectContactNetwork(Parameterization):
@@ -91,3 +93,6 @@ class ObjectContactNetwork(Parameterization):
             raise ValueError(f"facets must be {self.facets} (the network's outputs), got {facets}")
         per_facet = F.softplus(self.net(self.contact_features(contacts, q)))
         return per_facet.flatten(-2)
+
+
+register_parameterization("object_contact_network", ObjectContactNetwork)

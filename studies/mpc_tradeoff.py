@@ -25,16 +25,10 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from studies import report
 from torchcontact.environments.presets import NAMES, PAPER, PRESETS, MPCSettings
 from torchcontact.mpc import evaluate
-from torchcontact.results import (
-    atomic_write,
-    pareto_front,
-    read_json,
-    save_figure,
-    write_csv,
-    write_json,
-)
+from torchcontact.results import pareto_front, read_json
 
 PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
     "fingertips": (("rotation", "cube"), ("in-air", "cube")),
@@ -168,6 +162,22 @@ def preset_report(rows: Sequence[dict]) -> list[str]:
     return lines
 
 
+MARKDOWN_COLUMNS = ("setting", "preset", "success", "pos [mm]", "angle [°]", "solve ms", "p90 ms")
+
+
+def _markdown_cells(row: dict) -> list[str]:
+    """One row of an environment's table; front rows' labels in bold."""
+    return [
+        f"**{row['label']}**" if row["on_front"] else row["label"],
+        row["preset"],
+        f"{100 * row['success_rate']:.0f} %",
+        f"{row['pos_err_mm_mean']:.1f}",
+        f"{row['angle_err_deg_mean']:.1f}",
+        f"{row['solve_ms_median']:.1f}",
+        f"{row['solve_ms_p90']:.1f}",
+    ]
+
+
 def markdown(rows: Sequence[dict], trials: int) -> str:
     """The report: a table per environment (front rows in bold) and where the presets lie."""
     lines = [
@@ -177,30 +187,32 @@ def markdown(rows: Sequence[dict], trials: int) -> str:
     ]
     for env in dict.fromkeys(r["env"] for r in rows):
         pairs = ", ".join(f"{task} {obj}" for task, obj in PAIRS[env])
-        lines += [f"**{env}** ({pairs})", ""]
-        lines.append("| setting | preset | success | pos [mm] | angle [°] | solve ms | p90 ms |")
-        lines.append("|---|---|---|---|---|---|---|")
-        for r in sorted((r for r in rows if r["env"] == env), key=lambda r: r["solve_ms_median"]):
-            label = f"**{r['label']}**" if r["on_front"] else r["label"]
-            lines.append(
-                f"| {label} | {r['preset']} | {100 * r['success_rate']:.0f} % | "
-                f"{r['pos_err_mm_mean']:.1f} | {r['angle_err_deg_mean']:.1f} | "
-                f"{r['solve_ms_median']:.1f} | {r['solve_ms_p90']:.1f} |"
-            )
-        lines.append("")
+        group = sorted((r for r in rows if r["env"] == env), key=lambda r: r["solve_ms_median"])
+        table = report.markdown_table(MARKDOWN_COLUMNS, [_markdown_cells(r) for r in group])
+        lines += [f"**{env}** ({pairs})", "", table, ""]
     lines += ["Presets:", "", *preset_report(rows), ""]
     return "\n".join(lines)
 
 
+def _annotate(ax, x: float, y: float, row: dict) -> None:
+    """The setting's label at its point; a red star and the preset's name for a preset."""
+    ax.annotate(row["label"], (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    if row["preset"]:
+        ax.scatter([x], [y], marker="*", s=180, color="tab:red", zorder=4)
+        ax.annotate(
+            row["preset"],
+            (x, y),
+            fontsize=9,
+            color="tab:red",
+            xytext=(4, -12),
+            textcoords="offset points",
+        )
+
+
 def plot(path: Path, rows: Sequence[dict], env: str) -> Path:
     """Success and mean final angle error against median solve time, front and presets marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     group = sorted((r for r in rows if r["env"] == env), key=lambda r: r["solve_ms_median"])
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    figure, axes = report.figure(1, 2, size=(11, 4.2))
     for ax, key, scale, name in (
         (axes[0], "success_rate", 100.0, "success [%]"),
         (axes[1], "angle_err_deg_mean", 1.0, "mean final angle error [°]"),
@@ -212,17 +224,7 @@ def plot(path: Path, rows: Sequence[dict], env: str) -> Path:
         front_x, front_y = zip(*front, strict=True)
         ax.plot(front_x, front_y, "o-", color="tab:blue", ms=5, label="Pareto front", zorder=3)
         for a, b, r in zip(x, y, group, strict=True):
-            ax.annotate(r["label"], (a, b), fontsize=6, xytext=(3, 3), textcoords="offset points")
-            if r["preset"]:
-                ax.scatter([a], [b], marker="*", s=180, color="tab:red", zorder=4)
-                ax.annotate(
-                    r["preset"],
-                    (a, b),
-                    fontsize=9,
-                    color="tab:red",
-                    xytext=(4, -12),
-                    textcoords="offset points",
-                )
+            _annotate(ax, a, b, r)
         ax.set_xscale("log")
         ax.set_xlabel("median MPC solve per step [ms]")
         ax.set_ylabel(name)
@@ -230,18 +232,17 @@ def plot(path: Path, rows: Sequence[dict], env: str) -> Path:
     axes[0].legend(loc="lower right")
     figure.suptitle(f"{env}: closed-loop MPC, settings and presets (red stars)")
     figure.tight_layout()
-    save_figure(figure, path)
-    plt.close(figure)
-    return path
+    return report.save_figure(figure, path)
 
 
 def write_outputs(out: Path, rows: list[dict], trials: int) -> list[Path]:
     """CSV, JSON, markdown report and one plot per environment."""
-    report = markdown(rows, trials)
     paths = [
-        write_csv(out / "mpc_tradeoff.csv", rows),
-        write_json(out / "mpc_tradeoff.json", {"trials": trials, "pairs": PAIRS, "rows": rows}),
-        atomic_write(out / "mpc_tradeoff.md", lambda f: f.write(report)),
+        report.write_csv(out / "mpc_tradeoff.csv", rows),
+        report.write_json(
+            out / "mpc_tradeoff.json", {"trials": trials, "pairs": PAIRS, "rows": rows}
+        ),
+        report.write_text(out / "mpc_tradeoff.md", markdown(rows, trials)),
     ]
     for env in dict.fromkeys(r["env"] for r in rows):
         paths.append(plot(out / f"mpc_pareto_{env}.png", rows, env))
@@ -249,26 +250,23 @@ def write_outputs(out: Path, rows: list[dict], trials: int) -> list[Path]:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="benchmarks/tradeoff.py --level mpc",
-        description="Closed-loop MPC success and error against solve time, per solver setting.",
+    """The options: ``--env``, ``--settings`` (labels of :data:`GRID`), ``--trials``,
+    ``--workers``, ``--max-steps``, the outputs."""
+    parser = report.parser(
+        "benchmarks/tradeoff.py --level mpc",
+        "Closed-loop MPC success and error against solve time, per solver setting.",
+        "results/tradeoff/mpc",
     )
+    positive_int = report.positive_int
     parser.add_argument("--env", choices=sorted(PAIRS), nargs="+", default=sorted(PAIRS))
     parser.add_argument("--settings", nargs="+", default=list(GRID), help=f"labels of {list(GRID)}")
-    parser.add_argument("--trials", type=int, default=TRIALS, help="seeds per pair")
-    parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
-    parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
-    parser.add_argument("--out", type=Path, default=Path("results/tradeoff/mpc"))
-    parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--trials", type=positive_int, default=TRIALS, help="seeds per pair")
+    parser.add_argument("--workers", type=positive_int, default=1, help="parallel trial processes")
+    parser.add_argument("--max-steps", type=positive_int, help="default: the task's")
     args = parser.parse_args(argv)
     unknown = [label for label in args.settings if label not in GRID]
     if unknown:
         parser.error(f"--settings must be labels of {list(GRID)}, got {unknown}")
-    for name in ("trials", "workers"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name} must be >= 1, got {getattr(args, name)}")
-    if args.max_steps is not None and args.max_steps < 1:
-        parser.error(f"--max-steps must be >= 1, got {args.max_steps}")
     return args
 
 
@@ -289,5 +287,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     paths = write_outputs(args.out, rows, args.trials)
     print()
     print(markdown(rows, args.trials))
-    print("wrote " + ", ".join(str(p) for p in paths))
+    report.written(paths)
     return 0
+
+
+if __name__ == "__main__":
+    report.run_main(main)

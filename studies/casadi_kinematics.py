@@ -1,7 +1,7 @@
 """Fingertip forward kinematics as a CasADi function, built from the same MJCF as the MPC's.
 
 The paper's implementation writes each hand's forward kinematics by hand in CasADi. The IPOPT
-baseline (:mod:`torchcontact.mpc.ipopt_baseline`) needs the same map to state the hands' MPC,
+baseline (:mod:`studies.ipopt_baseline`) needs the same map to state the hands' MPC,
 so this composes it from the MuJoCo model instead: per body, its fixed offset from the
 parent, then its joints in order, as MuJoCo's own kinematics pass does. Agreement with the
 MuJoCo sites is tested.

@@ -1,6 +1,6 @@
-"""Full-dynamic experiments: short real runs of settings 1–2, the γ choice, metrics and the CLI.
+"""Full-dynamic study: short real runs of settings 1–2, the γ choice, metrics and the CLI.
 
-Measured at the settings' constants (``python -m torchcontact.experiments.full_dynamic``):
+Measured at the settings' constants (``python benchmarks/full_dynamic.py``):
 setting 1 after 1 s, v_x = 0.854 m/s (CF), 0.333 m/s (QP, exactly the sheath plateau
 gap/(2μh)) and 0.611 m/s (MuJoCo, Euler, pyramidal cone, chattering between the planes);
 all three stay far below Coulomb sliding ((F − μmg)/m·t = 2.06 m/s). Setting 2: the sliding
@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from torchcontact.experiments import full_dynamic as fd
+from studies import full_dynamic as fd
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +50,7 @@ def test_sliding_cube_cf_lifts_less_than_the_qp():
     }
     assert excursion["cf"] < excursion["qp"]
     # The QP's relaxation launches the cube at μ|v_t| = 0.8 m/s: a ballistic 33 mm hop.
-    assert excursion["qp"] == pytest.approx(0.8**2 / (2 * fd.GRAVITY), rel=0.05)
+    assert excursion["qp"] == pytest.approx(0.8**2 / (2 * fd.gravity(scene)), rel=0.05)
 
 
 def test_cube_gamma_must_be_sharper_than_the_row_weight():

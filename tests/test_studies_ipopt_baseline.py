@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
+from studies.ipopt_baseline import FORMULATIONS, IpoptMPC
 from torchcontact.functional import cf_velocity
 from torchcontact.mpc.fingertips import fingertips_mpc
 from torchcontact.mpc.hands import hand_mpc
-from torchcontact.mpc.ipopt_baseline import FORMULATIONS, IpoptMPC
 from torchcontact.mpc.suites import SUITES
 from torchcontact.results import read_json
 

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from torchcontact.mpc.casadi_kinematics import casadi_fingertips
+from studies.casadi_kinematics import casadi_fingertips
 from torchcontact.sim.hands import HANDS
 
 

@@ -14,13 +14,13 @@ least as accurate) and where it does not. One evaluation::
 Scenes (:data:`SCENES`; each with its default K₀, damping ratio and step h):
 
 * ``box_pushing``: the quasi-dynamic bar pushing a row of 10 cubes of
-  :mod:`~torchcontact.experiments.box_pushing` (h = 0.02 s, ε = 40, Kᵣ = 500, K₀ = 1). The
+  :mod:`~torchcontact.sim.box_pushing` (h = 0.02 s, ε = 40, Kᵣ = 500, K₀ = 1). The
   MuJoCo reference (:func:`box_pushing_reference`) simulates the same MJCF at dt = h/10 with
   μ = 0.5 and drives the bar kinematically: before every substep its x is set to
   ``x₀ + u·t/h`` and its velocity to ``u/h`` (−5 cm/s), so the cubes meet a bar moving exactly
   as commanded; the recorded bar state is the commanded one.
 * ``sliding_cube`` and ``falling_cube``: settings 2 and 3 of
-  :mod:`~torchcontact.experiments.full_dynamic` (full dynamic Q = M/h², h = 0.002 s, K₀ = 1,
+  :mod:`~studies.full_dynamic` (full dynamic Q = M/h², h = 0.002 s, K₀ = 1,
   D = 0.3·K). The reference is MuJoCo stepping the same MJCF at h; the model's state is
   (q, v), so its rollouts carry their own velocities, and ``traj_*`` compares the model's
   whole trajectory from the initial state with MuJoCo's over the setting's horizon.
@@ -66,18 +66,19 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from studies import full_dynamic as fd
+from studies import report
 from torchcontact.contacts import Contacts
-from torchcontact.experiments import box_pushing as bp
-from torchcontact.experiments import full_dynamic as fd
-from torchcontact.experiments.box_pushing_plant import BoxPushingPlant
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import Transitions, collect, load, select_contacts, system_header
 from torchcontact.learn.evaluate import pose_metrics
 from torchcontact.learn.fit import object_indices, system_terms
 from torchcontact.learn.scenes import make_scene
 from torchcontact.model import AnitescuQP, ComplementarityFree, ContactModel
-from torchcontact.results import atomic_write, pareto_front, save_figure, write_csv, write_json
+from torchcontact.results import pareto_front
 from torchcontact.sim import ContactDetector
+from torchcontact.sim import box_pushing as bp
+from torchcontact.sim.box_pushing import BoxPushingPlant
 from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import full_dynamic
 from torchcontact.validation import validate_args
@@ -361,7 +362,7 @@ class QuasiDynamicScene(Scene):
 
 
 class FullDynamicScene(Scene):
-    """A full-dynamic setting of :mod:`~torchcontact.experiments.full_dynamic` and MuJoCo's
+    """A full-dynamic setting of :mod:`~studies.full_dynamic` and MuJoCo's
     trajectory of it (``Q = M(q)/h²``, ``b = M v/h + τ − bias``, both from MuJoCo).
 
     Args:
@@ -779,18 +780,11 @@ def format_table(rows: Sequence[dict]) -> str:
             if r["scene"] == scene and (r["model"] == "qp" or any(r[f"front_{m}"] for m in METRICS))
         ]
         shown.sort(key=lambda r: r["sample_ms"])
-        table = [[title for _, title, _ in COLUMNS]] + [
+        cells = [
             ["-" if r[key] is None else fmt.format(r[key]) for key, _, fmt in COLUMNS]
             for r in shown
         ]
-        widths = [max(len(line[i]) for line in table) for i in range(len(COLUMNS))]
-        text = "\n".join(
-            "  ".join(
-                c.ljust(w) if i == 0 else c.rjust(w)
-                for i, (c, w) in enumerate(zip(line, widths, strict=True))
-            )
-            for line in table
-        )
+        text = report.format_table([title for _, title, _ in COLUMNS], cells, left=1)
         total = sum(r["scene"] == scene for r in rows)
         blocks.append(f"{scene}: QP and Pareto-front settings ({len(shown)} of {total})\n{text}")
     return "\n\n".join(blocks)
@@ -831,19 +825,33 @@ def _plot_scene(ax, group: Sequence[dict], metric: str) -> None:
     ax.grid(True, which="both", alpha=0.3)
 
 
+def _legend(batch: int) -> list:
+    """Legend entries of the Pareto plots: γ colours, dtype and batch markers, QP, front."""
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D([], [], ls="", marker="o", color=c, label="exact" if g is None else f"γ={g:g}")
+        for g, c in COLORS.items()
+    ]
+    handles += [
+        Line2D([], [], ls="", marker=m, color="gray", label=f"{d}, batch {1 if one else batch}")
+        for (d, one), m in MARKERS.items()
+    ]
+    return handles + [
+        Line2D([], [], ls="", marker="X", color="red", label="QP (OSQP)"),
+        Line2D([], [], color="k", label="Pareto front"),
+    ]
+
+
 def plot_pareto(path: Path, rows: Sequence[dict], metric: str) -> None:
     """Combined error against time per state, log axes, one panel per scene (three per
     line): CF coloured by γ, marker by dtype and batch size, QP as red crosses, the Pareto
     front as a black step line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     scenes = list(dict.fromkeys(r["scene"] for r in rows if math.isfinite(_error(r, metric))))
     columns = min(3, len(scenes))
     lines = math.ceil(len(scenes) / columns)
-    fig, axes = plt.subplots(lines, columns, figsize=(4.6 * columns, 3.8 * lines), squeeze=False)
+    size = (4.6 * columns, 3.8 * lines)
+    fig, axes = report.figure(lines, columns, size=size, squeeze=False)
     for ax, scene in zip(axes.flat, scenes, strict=False):
         group = [r for r in rows if r["scene"] == scene and math.isfinite(_error(r, metric))]
         _plot_scene(ax, group, metric)
@@ -851,34 +859,10 @@ def plot_pareto(path: Path, rows: Sequence[dict], metric: str) -> None:
         ax.set_ylabel(f"{METRICS[metric]} error (combined)")
     for ax in axes.flat[len(scenes) :]:
         ax.set_axis_off()
-    batch = max(r["batch"] for r in rows)
-    handles = [
-        plt.Line2D([], [], ls="", marker="o", color=c, label="exact" if g is None else f"γ={g:g}")
-        for g, c in COLORS.items()
-    ]
-    handles += [
-        plt.Line2D([], [], ls="", marker=m, color="gray", label=f"{d}, batch {1 if one else batch}")
-        for (d, one), m in MARKERS.items()
-    ]
-    handles += [
-        plt.Line2D([], [], ls="", marker="X", color="red", label="QP (OSQP)"),
-        plt.Line2D([], [], color="k", label="Pareto front"),
-    ]
+    handles = _legend(max(r["batch"] for r in rows))
     fig.legend(handles=handles, loc="lower center", ncol=5, fontsize=8)
     fig.tight_layout(rect=(0, 0.1 / lines, 1, 1))
-    save_figure(fig, path)
-    plt.close(fig)
-
-
-def _json_ready(value):
-    """NaN and ±inf become None (JSON has no such numbers)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    return value
+    report.save_figure(fig, path)
 
 
 def write_outputs(out: Path, rows: list[dict], meta: dict) -> list[Path]:
@@ -887,16 +871,15 @@ def write_outputs(out: Path, rows: list[dict], meta: dict) -> list[Path]:
     records = {metric: dominance(rows, metric) for metric in METRICS}
     payload = {**meta, "timed_region": TIMED_REGION, "rows": rows, "dominance": records}
     paths = [
-        write_csv(out / "tradeoff.csv", rows),
-        write_json(out / "tradeoff.json", _json_ready(payload)),
+        report.write_csv(out / "tradeoff.csv", rows),
+        report.write_json(out / "tradeoff.json", payload),
     ]
     for metric in METRICS:
         if any(math.isfinite(_error(r, metric)) for r in rows):
             path = out / f"pareto_{metric}.png"
             plot_pareto(path, rows, metric)
             paths.append(path)
-    markdown = summary_markdown(rows, meta)
-    paths.append(atomic_write(out / "tradeoff.md", lambda f: f.write(markdown)))
+    paths.append(report.write_text(out / "tradeoff.md", summary_markdown(rows, meta)))
     return paths
 
 
@@ -904,10 +887,13 @@ def write_outputs(out: Path, rows: list[dict], meta: dict) -> list[Path]:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python benchmarks/tradeoff.py",
-        description="Speed-accuracy trade-off of the contact models (CF settings and the QP) "
-        "against MuJoCo: time per step, one-step and 10-step errors, Pareto plots.",
+    """The options: ``--quick``, ``--scenes``, ``--device``, ``--batch``, the outputs; adds
+    ``command`` (the command line, for the report)."""
+    parser = report.parser(
+        "python benchmarks/tradeoff.py",
+        "Speed-accuracy trade-off of the contact models (CF settings and the QP) against "
+        "MuJoCo: time per step, one-step and 10-step errors, Pareto plots.",
+        "results/tradeoff",
     )
     parser.add_argument("--quick", action="store_true", help="small scenes and grid (< 1 min)")
     parser.add_argument(
@@ -921,14 +907,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="devices of the CF settings: cpu, cuda or both",
     )
     parser.add_argument("--batch", type=int, default=BATCH, help=f"the large batch ({BATCH})")
-    parser.add_argument("--out", type=Path, default=Path("results/tradeoff"))
     parser.add_argument(
         "--data",
         type=Path,
         default=None,
         help="hand datasets (default OUT/data; collected if missing)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="hide the progress bars")
     args = parser.parse_args(argv)
     unknown = [s for s in args.scenes if s not in SCENES]
     if unknown:
@@ -993,9 +977,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     paths = write_outputs(args.out, rows, meta)
     print()
     print((args.out / "tradeoff.md").read_text())
-    print("wrote " + ", ".join(str(p) for p in paths), file=sys.stderr)
+    report.written(paths)
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    report.run_main(main)

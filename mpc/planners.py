@@ -1,0 +1,105 @@
+"""Planners by name: each turns a batched objective and a box into a plan.
+
+A planner minimizes B independent problems ``f_b(x_b)`` over ``lower ≤ x ≤ upper`` from a start
+``x0 (B, n)``. The MPC composes a contact model, a cost and a planner; a new planner is one
+class with a :meth:`Planner.plan` method and one :func:`register_planner` call::
+
+    planner("lbfgs", max_iter=15, memory=8, compile=True).plan(objective, x0, (lower, upper))
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
+
+import torch
+
+from torchcontact.mpc.optim import lbfgs_box
+
+
+@dataclass(frozen=True)
+class Objective:
+    """A batched objective with its gradient.
+
+    Attributes:
+        value_and_grad: ``(x (N, n), *args) -> (f (N,), grad (N, n))``, rows independent.
+        traceable: the same function in a form ``torch.compile`` may trace into a planner's
+            own compiled graph (no graph breaks, the same function object from call to call),
+            or None where there is none.
+    """
+
+    value_and_grad: Callable[..., tuple[torch.Tensor, torch.Tensor]]
+    traceable: Callable[..., tuple[torch.Tensor, torch.Tensor]] | None = None
+
+
+class PlannerResult(NamedTuple):
+    """What a planner found: ``x (B, n)``, ``f (B,)``, rounds and objective evaluations."""
+
+    x: torch.Tensor
+    f: torch.Tensor
+    iterations: int
+    evaluations: int
+
+
+class Planner(Protocol):
+    """The planner interface; see the module docstring."""
+
+    def plan(
+        self,
+        objective: Objective,
+        x0: torch.Tensor,
+        box: tuple[torch.Tensor, torch.Tensor],
+        args: tuple = (),
+    ) -> PlannerResult:
+        """Minimize ``objective`` from ``x0 (B, n)`` within ``box = (lower, upper)``, each
+        broadcastable to ``(B, n)``; ``args`` go to the objective after ``x``."""
+        ...
+
+
+class LBFGS:
+    """Box-projected L-BFGS (:func:`~torchcontact.mpc.optim.lbfgs_box`), the paper's planner.
+
+    Args:
+        max_iter: line-search rounds at most; memory: (s, y) pairs kept.
+        compile: ``torch.compile`` the rounds, with a traceable objective traced into them.
+    """
+
+    def __init__(self, max_iter: int = 30, memory: int = 8, compile: bool = False):
+        self.max_iter, self.memory, self.compile = max_iter, memory, compile
+
+    def plan(self, objective: Objective, x0, box, args: tuple = ()) -> PlannerResult:
+        lower, upper = box
+        traced = self.compile and objective.traceable is not None
+        result = lbfgs_box(
+            objective.traceable if traced else objective.value_and_grad,
+            x0,
+            lower,
+            upper,
+            memory=self.memory,
+            max_iter=self.max_iter,
+            compile_steps=self.compile,
+            args=args,
+            compile_fun=traced,
+        )
+        return PlannerResult(result.x, result.f, int(result.n_iter), int(result.n_evals))
+
+
+PLANNERS: dict[str, Callable[..., Planner]] = {"lbfgs": LBFGS}
+"""Planner factories by name; each takes ``max_iter``, ``memory`` and ``compile``."""
+
+
+def register_planner(name: str, factory: Callable[..., Planner]) -> None:
+    """Make ``planner(name, **kw)`` call ``factory(**kw)``; ``name`` must be new."""
+    if not isinstance(name, str) or not name or name in PLANNERS:
+        raise ValueError(f"name must be a new planner name, got {name!r} (taken: {list(PLANNERS)})")
+    if not callable(factory):
+        raise ValueError(f"factory must be callable, got {factory!r}")
+    PLANNERS[name] = factory
+
+
+def planner(name: str, **options) -> Planner:
+    """The planner registered as ``name`` (one of :data:`PLANNERS`), built with ``options``."""
+    if name not in PLANNERS:
+        raise ValueError(f"planner must be one of {sorted(PLANNERS)}, got {name!r}")
+    return PLANNERS[name](**options)

@@ -1,0 +1,83 @@
+"""The three-fingertip environment: three free spheres on slide joints push an object on the
+ground (the paper's rotation, flip and in-air tasks)."""
+
+from __future__ import annotations
+
+import torch
+
+from torchcontact.environments import tasks
+from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, ObjectModel
+from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.presets import MPCSettings
+from torchcontact.integrate import JointLayout
+from torchcontact.sim.fingertips import FingertipsEnv
+from torchcontact.sim.robot import Robot
+
+TRANSLATION_METRIC = 50.0
+"""εMₒ/h² on the object's translation [N/m] (the rotation's is per object, see
+:data:`~torchcontact.environments.tasks.OBJECT_SETTINGS`)."""
+
+ROBOT_STIFFNESS = 100.0
+"""Kᵣ [N/m] of the quasi-dynamic tips."""
+
+CONTROL_BOUND = 0.005
+"""|u| per element [m of tip displacement per step]."""
+
+PAPER_STIFFNESS = 1.0
+"""The paper's K."""
+
+STIFFNESS = 4.64
+"""The default K: ``torchcontact learn-k --scene fingertips --object cube``'s best constant K
+on the cube's MPC rollouts (10-step error 0.066 against 0.084 with the paper's K = 1)."""
+
+PRESETS = {
+    "fast": MPCSettings(max_iter=5),
+    "balanced": MPCSettings(max_iter=20, dtype="float32", gaps="propagated"),
+    "accurate": MPCSettings(memory=16),
+}
+"""Solver presets on the measured front (README "Choosing settings")."""
+
+
+class FingertipsEnvironment(Environment):
+    """Three fingertip spheres (9 slide joints) and one object on the ground."""
+
+    name = "fingertips"
+    pairs = tasks.PAPER_PAIRS
+    criterion = tasks.FINGERTIPS_SUCCESS
+    stiffness = PAPER_STIFFNESS
+    default_stiffness = STIFFNESS
+    presets = PRESETS
+    user_meshes = False
+    layout = JointLayout.manipulation(["slide"] * 9)
+
+    def make_plant(self, obj, collision: str = BENCHMARK_COLLISION) -> FingertipsEnv:
+        settings = tasks.OBJECT_SETTINGS[obj]
+        return FingertipsEnv(
+            obj,
+            object_friction=settings.object_friction,
+            contact_slots=settings.contact_slots,
+            overflow="deepest",
+            collision=collision,
+        )
+
+    def robot(self, dtype: torch.dtype = torch.float64) -> Robot:
+        return Robot.point_tips(3)
+
+    def object_model(self, plant: FingertipsEnv) -> ObjectModel:
+        rotation = tasks.OBJECT_SETTINGS[plant.object.name].rotational_metric
+        return ObjectModel((TRANSLATION_METRIC,) * 3 + (rotation,) * 3, ROBOT_STIFFNESS)
+
+    def h(self, plant: FingertipsEnv) -> float:
+        return tasks.OBJECT_SETTINGS[plant.object.name].model_step
+
+    def control_bound(self, plant: FingertipsEnv) -> float:
+        return CONTROL_BOUND
+
+    def cost(self, plant: FingertipsEnv) -> ManipulationCost:
+        return ManipulationCost()
+
+    def sample(self, plant: FingertipsEnv, task: str, seed: int):
+        return tasks.sample(task, plant.object.name, seed)
+
+
+FINGERTIPS = FingertipsEnvironment()

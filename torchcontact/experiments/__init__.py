@@ -1,1 +1,0 @@
-"""Reproductions of the paper's contact-simulation experiments (box pushing, full dynamics)."""
