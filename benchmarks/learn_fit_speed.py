@@ -19,17 +19,16 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
-from torchcontact.learn.data import collect, load  # noqa: E402
-from torchcontact.learn.evaluate import one_step_error  # noqa: E402
-from torchcontact.learn.fit import (  # noqa: E402
+from torchcontact.checkpoint import (  # noqa: E402
     DAMPING_KINDS,
     STIFFNESS_KINDS,
     FitConfig,
-    StepData,
     build_model,
     constant_model,
-    fit,
 )
+from torchcontact.learn.data import collect, load  # noqa: E402
+from torchcontact.learn.evaluate import one_step_error  # noqa: E402
+from torchcontact.learn.fit import StepData, fit  # noqa: E402
 from torchcontact.learn.scenes import SCENES  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 

@@ -16,11 +16,11 @@ import math
 import numpy as np
 import torch
 
+from torchcontact.checkpoint import constant_model
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import Transitions
 from torchcontact.learn.fit import (
     StepData,
-    constant_model,
     object_indices,
     pose_errors,
     predict_poses,

@@ -23,6 +23,14 @@ from pathlib import Path
 
 import torch
 
+from torchcontact.checkpoint import (
+    DAMPING_KINDS,
+    STIFFNESS_KINDS,
+    FitConfig,
+    build_model,
+    constant_model,
+    save_checkpoint,
+)
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import (
     log_grid,
@@ -31,16 +39,7 @@ from torchcontact.learn.evaluate import (
     still_error,
     sweep_constant,
 )
-from torchcontact.learn.fit import (
-    DAMPING_KINDS,
-    STIFFNESS_KINDS,
-    FitConfig,
-    StepData,
-    build_model,
-    constant_model,
-    fit,
-    save_checkpoint,
-)
+from torchcontact.learn.fit import StepData, fit
 from torchcontact.learn.policies import ACTIONS
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, make_scene
 from torchcontact.results import write_csv, write_json

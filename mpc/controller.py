@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcontact.contacts import Contacts
+from torchcontact.environments import costs
 from torchcontact.environments.base import Environment
 from torchcontact.environments.costs import Cost
 from torchcontact.environments.presets import GAPS, MPCSettings
@@ -119,6 +120,7 @@ class ContactImplicitMPC:
         model: ContactModel | str | None = None,
         planner: Planner | str = "lbfgs",
         settings: MPCSettings | str | None = None,
+        cost: Cost | str | None = None,
     ) -> ContactImplicitMPC:
         """The MPC of ``env``'s ``plant``: its system (the plant's object mass), layout,
         fingertips, cost, control box and h.
@@ -138,6 +140,10 @@ class ContactImplicitMPC:
         if isinstance(planner, str):
             options = {"max_iter": settings.max_iter, "memory": settings.memory}
             planner = planners.planner(planner, compile=settings.compile, **options)
+        if cost is None:
+            cost = env.cost(plant)
+        elif isinstance(cost, str):
+            cost = costs.cost(cost)
         bound = env.control_bound(plant)
         dtype = getattr(torch, settings.dtype)
         return cls(
@@ -145,7 +151,7 @@ class ContactImplicitMPC:
             model,
             env.layout,
             env.fingertips(dtype),
-            env.cost(plant),
+            cost,
             -bound,
             bound,
             horizon=settings.horizon,

@@ -21,6 +21,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
+from torchcontact.environments.costs import COSTS
 from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
@@ -59,6 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
         "(README 'Choosing settings'); the options below override single values",
     )
     parser.add_argument("--planner", choices=sorted(PLANNERS), default="lbfgs")
+    parser.add_argument(
+        "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
+    )
     parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
     parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")

@@ -54,6 +54,7 @@ LEGACY_DEFAULTS = {
     "planner": "lbfgs",
     "robot": None,
     "tips": None,
+    "cost": None,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -74,6 +75,7 @@ class TrialConfig:
         planner: the planner's registered name.
         scenes: :data:`SCENES_VERSION`; collision: how the object collides.
         robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``).
+        cost: a cost's registered name, None for the environment's.
     """
 
     env: str
@@ -96,6 +98,7 @@ class TrialConfig:
     planner: str = "lbfgs"
     robot: str | None = None
     tips: tuple[str, ...] | None = None
+    cost: str | None = None
 
     @property
     def settings(self) -> MPCSettings:
@@ -182,7 +185,9 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision)
     model = trial_model(config, env.h(plant))
-    mpc = ContactImplicitMPC.from_env(env, plant, model, config.planner, config.settings)
+    mpc = ContactImplicitMPC.from_env(
+        env, plant, model, config.planner, config.settings, config.cost
+    )
     return env, plant, mpc
 
 

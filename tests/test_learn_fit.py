@@ -5,21 +5,18 @@ import dataclasses
 import pytest
 import torch
 
+from torchcontact.checkpoint import (
+    STIFFNESS_KINDS,
+    FitConfig,
+    build_model,
+    constant_model,
+    load_checkpoint,
+    save_checkpoint,
+)
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import one_step_error, rollout_error, sweep_constant
-from torchcontact.learn.fit import (
-    STIFFNESS_KINDS,
-    FitConfig,
-    StepData,
-    build_model,
-    constant_model,
-    fit,
-    load_checkpoint,
-    predict_poses,
-    save_checkpoint,
-    system_terms,
-)
+from torchcontact.learn.fit import StepData, fit, predict_poses, system_terms
 from torchcontact.learn.scenes import make_scene
 
 

@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
+from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import main
-from torchcontact.learn.fit import load_checkpoint
 from torchcontact.mpc.evaluate import learned_model
 from torchcontact.results import read_json
 

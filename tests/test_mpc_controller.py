@@ -1,6 +1,7 @@
 """The contact-implicit MPC: rollout, gradients, box, warm start and a closed-loop smoke run."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -9,38 +10,47 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcontact import AnitescuQP
-from torchcontact.environments import tasks
+from torchcontact.environments import environment, tasks
+from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.fingertips import CONTROL_BOUND
+from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import integrate
-from torchcontact.mpc.controller import CONTACT_BUCKET, GAPS, ContactImplicitMPC
-from torchcontact.mpc.fingertips import CONTROL_BOUND, LAYOUT, fingertip_positions, fingertips_mpc
-from torchcontact.sim import FingertipsEnv
+from torchcontact.model import contact_model
+from torchcontact.mpc.controller import CONTACT_BUCKET, ContactImplicitMPC
+from torchcontact.mpc.planners import LBFGS
+from torchcontact.relaxed_qp import paper_relaxation
 
 DT = torch.float64
+FINGERTIPS = environment("fingertips")
 
 
 @pytest.fixture(scope="module")
 def env():
-    settings_ = tasks.OBJECT_SETTINGS["cube"]
-    return FingertipsEnv(
-        "cube", object_friction=settings_.object_friction, contact_slots=settings_.contact_slots
-    )
+    return FINGERTIPS.make_plant("cube")
+
+
+def _mpc(plant, model=None, **options):
+    """The fingertips' MPC of ``plant``, eager, with the paper's settings changed by ``options``
+    (``model``: None for the paper's at the default K, or a name or model)."""
+    solver = MPCSettings(compile=False, **options)
+    return ContactImplicitMPC.from_env(FINGERTIPS, plant, model, settings=solver)
 
 
 @pytest.fixture(scope="module")
-def mpc():
-    return fingertips_mpc("cube", max_iter=15)
+def mpc(env):
+    return _mpc(env, max_iter=15)
 
 
 @pytest.fixture(scope="module")
-def propagated_mpc():
-    return fingertips_mpc("cube", max_iter=15, gaps="propagated")
+def propagated_mpc(env):
+    return _mpc(env, max_iter=15, gaps="propagated")
 
 
 @pytest.fixture(scope="module")
-def qp_mpc():
+def qp_mpc(env):
     """The same MPC through the relaxed QP (the paper's implicit-MPC baseline)."""
-    return fingertips_mpc("cube", model="qp", max_iter=15)
+    return _mpc(env, "relaxed_qp", max_iter=15)
 
 
 def _touching_state(env):
@@ -53,13 +63,27 @@ def _touching_state(env):
 TARGET = (torch.tensor([0.05, 0.02, 0.03], dtype=DT), torch.tensor([0.0, 0, 0, 1], dtype=DT))
 
 
+def test_the_environments_mpc_has_the_papers_fingertip_settings(env, mpc, qp_mpc):
+    q, contacts = _touching_state(env)
+    step = mpc.freeze(q, contacts)
+    K = FINGERTIPS.default_stiffness
+    assert K == 4.64
+    torch.testing.assert_close(step.stiffness, torch.full_like(step.stiffness, K))
+    torch.testing.assert_close(step.damping, 0.1 * step.stiffness)  # D = 0.1·K
+    assert mpc.h == tasks.OBJECT_SETTINGS["cube"].model_step == 0.1
+    assert (mpc.horizon, mpc.planner.max_iter, mpc.planner.memory) == (4, 15, 8)
+    assert float(mpc.upper.max()) == -float(mpc.lower.min()) == CONTROL_BOUND
+    # the paper's κ converted to this QP's scaling at the cube's h
+    assert qp_mpc.model.relaxation == pytest.approx(paper_relaxation(qp_mpc.h))
+
+
 @pytest.mark.parametrize("model", ["mpc", "qp_mpc"])
 def test_rollout_equals_stepping_the_model(env, model, request):
     mpc = request.getfixturevalue(model)
     q, contacts = _touching_state(env)
     assert int(contacts.n_active()) == 5  # four ground corners and the tip
     controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
-    states = mpc.rollout(q, controls, mpc.frozen_rows(q, contacts))
+    states = mpc.rollout(q, controls, mpc.freeze(q, contacts))
     assert states.shape == (2, mpc.horizon + 1, 16)
     for b in range(2):
         state = q
@@ -73,22 +97,25 @@ def test_rollout_equals_stepping_the_model(env, model, request):
 def test_propagated_gaps_follow_the_models_own_motion(env):
     """Each step sees φ̃ advanced along the frozen normal rows by the steps before it; the first
     step, and every step with frozen gaps, sees the detected distances."""
-    frozen, propagated = fingertips_mpc("cube"), fingertips_mpc("cube", gaps="propagated")
+    frozen, propagated = _mpc(env), _mpc(env, gaps="propagated")
     q, contacts = _touching_state(env)
-    rows = propagated.frozen_rows(q, contacts)
-    jac, phi, K, D, normal = rows
+    step = propagated.freeze(q, contacts)
+    normal = step.normal
     torch.testing.assert_close(normal[::4], contacts.jac_normal * contacts.active.unsqueeze(-1))
     controls = 0.004 * torch.randn(2, propagated.horizon, 9, dtype=DT)
-    states = propagated.rollout(q, controls, rows)
+    states = propagated.rollout(q, controls, step)
     Q, bias = propagated.system(controls)
-    gap = phi.expand(2, -1)
+    gap = step.phi.expand(2, -1)
     for t in range(propagated.horizon):
-        v = cf_velocity(Q, bias[:, t], jac, gap, propagated.h, K, D, propagated.model.gamma)
-        torch.testing.assert_close(
-            states[:, t + 1], integrate(states[:, t], v, propagated.h, LAYOUT)
+        v = cf_velocity(
+            Q, bias[:, t], step.jac, gap, propagated.h, step.stiffness, step.damping, step.gamma
         )
+        torch.testing.assert_close(
+            states[:, t + 1], integrate(states[:, t], v, propagated.h, FINGERTIPS.layout)
+        )
+        torch.testing.assert_close(step.advance_gaps(v).phi, step.phi + propagated.h * v @ normal.T)
         gap = gap + propagated.h * v @ normal.T
-    first = frozen.rollout(q, controls, frozen.frozen_rows(q, contacts))
+    first = frozen.rollout(q, controls, frozen.freeze(q, contacts))
     torch.testing.assert_close(states[:, 1], first[:, 1])
     assert not torch.allclose(states[:, -1], first[:, -1])
 
@@ -101,34 +128,47 @@ def test_propagated_gaps_release_a_tip_the_plan_pulls_away(env):
     controls[..., 0] = 0.005  # +x: away from the cube's +x face
     pushes = {}
     for gaps in GAPS:
-        mpc = fingertips_mpc("cube", gaps=gaps)
-        states = mpc.rollout(q, controls, mpc.frozen_rows(q, contacts))
+        mpc = _mpc(env, gaps=gaps)
+        states = mpc.rollout(q, controls, mpc.freeze(q, contacts))
         pushes[gaps] = (states[0, 2:, 0] - states[0, 1:-1, 0]).abs().sum()
     assert float(pushes["propagated"]) < 0.1 * float(pushes["frozen"])
 
 
-def test_propagated_gaps_are_for_the_complementarity_free_model():
+def test_propagated_gaps_are_for_the_complementarity_free_model(env, mpc):
+    q, contacts = _touching_state(env)
+    qp = _mpc(env, "relaxed_qp", max_iter=2, gaps="propagated")
     with pytest.raises(ValueError, match="gaps"):
-        fingertips_mpc("cube", model="qp", gaps="propagated")
+        qp.plan(q, contacts, *TARGET)
     with pytest.raises(ValueError, match="gaps"):
-        fingertips_mpc("cube", gaps="updated")
+        ContactImplicitMPC(
+            mpc.system,
+            mpc.model,
+            mpc.layout,
+            mpc.fingertips,
+            mpc.cost,
+            -1e-3,
+            1e-3,
+            gaps="updated",
+        )
+    with pytest.raises(ValueError, match="gaps"):
+        MPCSettings(gaps="updated")
 
 
 @pytest.mark.parametrize("model", ["mpc", "propagated_mpc", "qp_mpc"])
 def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, model, request):
     mpc = request.getfixturevalue(model)
     q, contacts = _touching_state(env)
-    rows = mpc.frozen_rows(q, contacts)
+    frozen = mpc.freeze(q, contacts)
     controls = (0.004 * torch.randn(3, mpc.horizon, 9, dtype=DT)).requires_grad_(True)
-    cost, grad = mpc.value_and_grad(controls.detach(), q, rows, *TARGET)
-    taped = mpc.objective(controls, q, rows, *TARGET)  # the QP solved inside the tape
+    cost, grad = mpc.value_and_grad(controls.detach(), q, frozen, *TARGET)
+    taped = mpc.objective(controls, q, frozen, *TARGET)  # the QP solved inside the tape
     (taped_grad,) = torch.autograd.grad(taped.sum(), controls)
     torch.testing.assert_close(cost, taped.detach())
     torch.testing.assert_close(grad, taped_grad)
     direction = torch.randn_like(controls)
     eps = 1e-7
-    plus = mpc.objective(controls.detach() + eps * direction, q, rows, *TARGET)
-    minus = mpc.objective(controls.detach() - eps * direction, q, rows, *TARGET)
+    plus = mpc.objective(controls.detach() + eps * direction, q, frozen, *TARGET)
+    minus = mpc.objective(controls.detach() - eps * direction, q, frozen, *TARGET)
     torch.testing.assert_close(
         (plus - minus) / (2 * eps), (grad * direction).sum((-1, -2)), rtol=1e-5, atol=1e-7
     )
@@ -137,8 +177,9 @@ def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, mo
 def test_qp_plan_stays_in_its_box_and_lowers_the_cost_from_the_warm_start(env, qp_mpc):
     q, contacts = _touching_state(env)
     qp_mpc.reset()
-    rows = qp_mpc.frozen_rows(q, contacts)
-    warm, _ = qp_mpc.value_and_grad(torch.zeros(1, qp_mpc.horizon, 9, dtype=DT), q, rows, *TARGET)
+    frozen = qp_mpc.freeze(q, contacts)
+    still = torch.zeros(1, qp_mpc.horizon, 9, dtype=DT)
+    warm, _ = qp_mpc.value_and_grad(still, q, frozen, *TARGET)
     plan = qp_mpc.plan(q, contacts, *TARGET)
     assert bool((plan.controls.abs() <= CONTROL_BOUND).all())
     assert plan.cost < 0.99 * float(warm[0])
@@ -151,17 +192,23 @@ def test_qp_mpc_keeps_a_resting_cube_within_a_millimetre_per_step(env, qp_mpc):
     q, contacts = torch.as_tensor(env.state()), env.contacts(DT)
     assert int(contacts.n_active()) == 4
     still = torch.zeros(1, qp_mpc.horizon, 9, dtype=DT)
-    states = qp_mpc.rollout(q, still, qp_mpc.frozen_rows(q, contacts))
+    states = qp_mpc.rollout(q, still, qp_mpc.freeze(q, contacts))
     assert float((states[0, 1:, 2] - states[0, :-1, 2]).abs().max()) < 1e-3
 
 
-def test_the_mpc_refuses_models_it_cannot_differentiate(mpc):
-    with pytest.raises(ValueError, match="model"):
+def test_the_mpc_refuses_models_it_cannot_differentiate(env, mpc):
+    q, contacts = _touching_state(env)
+    osqp = ContactImplicitMPC(
+        mpc.system, AnitescuQP(), mpc.layout, mpc.fingertips, mpc.cost, -1e-3, 1e-3
+    )
+    with pytest.raises(ValueError, match="cannot be frozen"):  # OSQP has no gradient
+        osqp.plan(q, contacts, *TARGET)
+    with pytest.raises(ValueError, match="model must be a ContactModel"):
         ContactImplicitMPC(
-            mpc.system, AnitescuQP(), LAYOUT, fingertip_positions, mpc.cost, -1e-3, 1e-3
+            mpc.system, torch.nn.Identity(), mpc.layout, mpc.fingertips, mpc.cost, -1e-3, 1e-3
         )
-    with pytest.raises(ValueError, match="model"):
-        fingertips_mpc("cube", model="osqp")
+    with pytest.raises(ValueError, match="must be one of"):
+        _mpc(env, "osqp")
 
 
 @settings(max_examples=12, deadline=None)
@@ -205,19 +252,33 @@ def test_compiled_plan_matches_the_eager_plan(env, gaps):
     the same plans as eager, plan after warm-started plan."""
     q, contacts = _touching_state(env)
     options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
-    eager = fingertips_mpc("cube", **options)
-    compiled = fingertips_mpc("cube", compile=True, **options)
+    eager = _mpc(env, **options)
+    compiled = ContactImplicitMPC.from_env(
+        FINGERTIPS, env, settings=MPCSettings(compile=True, **options)
+    )
+    assert compiled.compiled and compiled.planner.compile
     for _ in range(3):
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0
 
 
+def test_a_planner_passed_in_is_the_one_that_plans(env):
+    """``from_env`` builds L-BFGS from the settings unless given a planner."""
+    q, contacts = _touching_state(env)
+    few = LBFGS(max_iter=2)
+    mpc = ContactImplicitMPC.from_env(
+        FINGERTIPS, env, planner=few, settings=MPCSettings(max_iter=30, compile=False)
+    )
+    assert mpc.planner is few
+    assert 0 < mpc.plan(q, contacts, *TARGET).iterations <= 2
+
+
 def test_padding_slots_do_not_change_the_plan(env):
     """The plan pads contacts to a multiple of CONTACT_BUCKET slots; more padding changes
     nothing but rounding."""
     q, contacts = _touching_state(env)
-    mpc = fingertips_mpc("cube", horizon=2, max_iter=8)
+    mpc = _mpc(env, horizon=2, max_iter=8)
     plan = mpc.plan(q, contacts, *TARGET)
     mpc.reset()
     padded = mpc.plan(q, contacts.padded(contacts.slots + CONTACT_BUCKET + 1), *TARGET)
@@ -227,7 +288,7 @@ def test_padding_slots_do_not_change_the_plan(env):
 
 def test_closed_loop_moves_the_cube_toward_its_target(env, mpc):
     """120 MPC steps of cube rotation (seed 1): the pose error shrinks in position and angle."""
-    initial, target = tasks.sample("rotation", "cube", 1)
+    initial, target = FINGERTIPS.sample(env, "rotation", 1)
     env.reset(initial, target)
     mpc.reset()
     start_pos = tasks.position_error(initial[:3], target[:3])
@@ -247,18 +308,29 @@ def test_closed_loop_moves_the_cube_toward_its_target(env, mpc):
 
 def test_bad_arguments_name_themselves(env, mpc):
     with pytest.raises(ValueError, match="horizon"):
-        fingertips_mpc("cube", horizon=0)
+        ContactImplicitMPC(
+            mpc.system, mpc.model, mpc.layout, mpc.fingertips, mpc.cost, -1e-3, 1e-3, horizon=0
+        )
+    with pytest.raises(ValueError, match="horizon"):
+        _mpc(env, horizon=0)
     q, contacts = _touching_state(env)
     with pytest.raises(ValueError, match="q"):
         mpc.plan(q[:10], contacts, torch.zeros(3, dtype=DT), torch.tensor([1.0, 0, 0, 0]))
 
 
-def test_planned_tip_heights_are_bounded_as_in_the_papers_fingertip_mpc():
+def _bounded_tips_cost(obj: str) -> ManipulationCost:
+    """The paper's fingertip state bounds as a cost: tip heights in [0, ``tip_height_max``]."""
+    high = tasks.OBJECT_SETTINGS[obj].tip_height_max
+    return ManipulationCost(tip_height=(0.0, math.inf if high is None else high))
+
+
+def test_planned_tip_heights_are_bounded_as_in_the_papers_fingertip_mpc(env):
     """z ≥ 0 for every object, z ≤ 0.1 m for the stick: the penalty is weight × excess² summed
     over the planned states q₁…q_T (not q₀, which the plan cannot change)."""
-    assert fingertips_mpc("stick").cost.tip_height is None  # off by default
-    assert fingertips_mpc("stick", bound_tips=True).cost.tip_height == (0.0, 0.1)
-    cost = fingertips_mpc("cube", bound_tips=True).cost
+    stick = FINGERTIPS.make_plant("stick")
+    assert FINGERTIPS.cost(stick).tip_height is None  # off by default
+    assert _bounded_tips_cost("stick").tip_height == (0.0, 0.1)
+    cost = _bounded_tips_cost("cube")
     assert cost.tip_height == (0.0, float("inf"))
     free = dataclasses.replace(cost, tip_height=None)
     T = 4
@@ -270,3 +342,27 @@ def test_planned_tip_heights_are_bounded_as_in_the_papers_fingertip_mpc():
     args = (positions, quats, tips, torch.zeros(T, 9, dtype=DT), positions[0], quats[0])
     extra = cost(*args) - free(*args)
     torch.testing.assert_close(extra, torch.tensor(cost.tip_height_weight * 0.003**2, dtype=DT))
+
+
+def test_an_mpc_built_with_the_tip_bounds_charges_a_plan_through_the_floor(env, mpc):
+    """The bounded cost passed to the constructor: a plan that lowers tip 1 (resting 1 cm up)
+    5 mm a step costs weight × Σ (planned depth below the floor)² more than without."""
+    bounded = ContactImplicitMPC(
+        FINGERTIPS.system(env),
+        contact_model("paper", stiffness=FINGERTIPS.default_stiffness),
+        FINGERTIPS.layout,
+        FINGERTIPS.fingertips(),
+        _bounded_tips_cost("cube"),
+        -CONTROL_BOUND,
+        CONTROL_BOUND,
+        h=FINGERTIPS.h(env),
+    )
+    q, contacts = _touching_state(env)
+    down = torch.zeros(1, bounded.horizon, 9, dtype=DT)
+    down[..., 5] = -CONTROL_BOUND
+    frozen = bounded.freeze(q, contacts)
+    extra = bounded.objective(down, q, frozen, *TARGET) - mpc.objective(down, q, frozen, *TARGET)
+    z = bounded.fingertips(bounded.rollout(q, down, frozen))[0, 1:, :, 2]
+    assert float(z.min()) < -1e-3  # the plan does take tip 1 below the floor
+    expected = bounded.cost.tip_height_weight * z.clamp(max=0).square().sum()
+    torch.testing.assert_close(extra[0], expected)

@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from studies import model_tradeoff as to
+from torchcontact.checkpoint import constant_model
 from torchcontact.learn.evaluate import one_step_error, rollout_error
-from torchcontact.learn.fit import StepData, constant_model
+from torchcontact.learn.fit import StepData
 from torchcontact.sim import box_pushing as bp
 
 ERRORS = [f"{g}_{k}" for g in ("one_step", "h10") for k in ("pos_mm", "angle_deg", "combined")]

@@ -143,11 +143,12 @@ class PushingCost:
     the others are free to keep out of its way.
 
     Attributes:
-        standoff: distance [m] behind the object's centre the tips aim at (about its
-            half-width plus a tip radius).
+        standoff: distance [m] behind the object's centre the nearest tip aims at. At 0 it
+            aims at the centre, through the object, so the model predicts a push; a standoff
+            of about the object's half-width brings a tip round to the far side first.
     """
 
-    standoff: float = 0.04
+    standoff: float = 0.0
     contact: float = 1.0
     control: float = 10.0
     position: float = 500.0

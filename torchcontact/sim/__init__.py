@@ -8,6 +8,7 @@ select_gl_backend()
 from torchcontact.sim.detect import ContactDetector
 from torchcontact.sim.dynamics import bias_force, joint_layout, mass_matrix
 from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
+from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import (
     OBJECT_SIZES,
     ObjectMesh,
@@ -17,17 +18,25 @@ from torchcontact.sim.objects import (
     make_object,
     object_names,
 )
+from torchcontact.sim.robot import Actuator, Robot
+from torchcontact.sim.user_scene import DEFAULT_EPSILON, UserScene, describe_scene
 
 __all__ = [
+    "DEFAULT_EPSILON",
     "INITIAL_TIPS",
     "OBJECT_SIZES",
     "TIP_RADIUS",
+    "Actuator",
     "ContactDetector",
+    "FingertipKinematics",
     "FingertipsEnv",
     "ObjectMesh",
+    "Robot",
+    "UserScene",
     "add_goal_marker",
     "add_object",
     "bias_force",
+    "describe_scene",
     "joint_layout",
     "load_object",
     "make_object",

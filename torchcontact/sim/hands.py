@@ -57,7 +57,7 @@ class Hand:
 
     Attributes:
         name: ``"trifinger"`` or ``"allegro"``.
-        asset: its MJCF in ``torchcontact.assets``.
+        asset: its MJCF: a file name in ``torchcontact.assets``, or an absolute path.
         initial_joints: joint configuration at the start of every trial [rad].
         frame_skip: MuJoCo substeps per step.
         servo: ``"pd"``: the file's motors apply ``τ = kp(q_des − q) − kd q̇ + bias`` every
@@ -145,8 +145,10 @@ class Hand:
 
     @property
     def mjcf(self) -> Path:
-        """Path of the robot's model file."""
-        return asset_path(self.asset)
+        """Path of the robot's model file: ``asset`` itself where it is an absolute path (a
+        user's robot), else the bundled asset of that name."""
+        path = Path(self.asset)
+        return path if path.is_absolute() else asset_path(self.asset)
 
 
 def _chosen(value, default):

@@ -1,0 +1,162 @@
+"""Saving and loading a complementarity-free model with the architecture that rebuilds it.
+
+A checkpoint stores the model's ``state_dict`` beside the :class:`FitConfig` (which K and D
+parameterizations, their sizes) and the dataset metadata (γ, facets, slots, nq, the paper's K)
+that :func:`build_model` needs, so :func:`load_model` rebuilds the same module from the file
+alone. Pure torch: the MPC loads a learned model without the learning package.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+
+from torchcontact.model import ComplementarityFree
+from torchcontact.networks import ObjectContactNetwork
+from torchcontact.results import atomic_write
+from torchcontact.stiffness import (
+    Constant,
+    ContactNetwork,
+    Parameterization,
+    PerRow,
+    Relative,
+    StateNetwork,
+)
+
+STIFFNESS_KINDS = ("constant", "per_row", "contact_network", "state_network", "object_network")
+"""Learnable parameterizations of K: those of :mod:`torchcontact.stiffness` and
+:class:`~torchcontact.networks.ObjectContactNetwork`."""
+
+DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
+"""D: ``"paper"`` fixed 0.1·K, ``"none"``, ``"relative"`` a learned ratio·K, or its own
+learnable parameterization (started at 0.1 × the initial K)."""
+
+CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """What to fit and how.
+
+    Attributes:
+        stiffness: parameterization of K, one of :data:`STIFFNESS_KINDS`.
+        damping: parameterization of D, one of :data:`DAMPING_KINDS`.
+        initial_stiffness: K everywhere at the start [N/m per row]; None: the paper's K.
+        hidden: hidden units of the network parameterizations.
+        distance_scale: φ scale [m] of the contact-network features (φ/scale, clamped to ±10).
+        epochs: at most this many passes over the training set.
+        batch_size: transitions per Adam step.
+        lr: Adam's learning rate.
+        patience: stop after this many epochs without a better validation loss.
+        seed: seed of the initialization and the batch order.
+    """
+
+    stiffness: str = "contact_network"
+    damping: str = "relative"
+    initial_stiffness: float | None = None
+    hidden: int = 32
+    distance_scale: float = 0.01
+    epochs: int = 200
+    batch_size: int = 512
+    lr: float = 1e-2
+    patience: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stiffness not in STIFFNESS_KINDS:
+            raise ValueError(f"stiffness must be one of {STIFFNESS_KINDS}, got {self.stiffness!r}")
+        if self.damping not in DAMPING_KINDS:
+            raise ValueError(f"damping must be one of {DAMPING_KINDS}, got {self.damping!r}")
+        if self.initial_stiffness is not None and not (
+            math.isfinite(self.initial_stiffness) and self.initial_stiffness > 0
+        ):
+            raise ValueError(f"initial_stiffness must be positive, got {self.initial_stiffness!r}")
+        for name in ("hidden", "epochs", "batch_size", "patience"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+
+
+def _parameterization(kind: str, value: float, meta: dict, config: FitConfig) -> Parameterization:
+    rows = meta["slots"] * meta["facets"]
+    if kind == "constant":
+        return Constant(value)
+    if kind == "per_row":
+        return PerRow(rows, value)
+    if kind == "contact_network":
+        return ContactNetwork(config.hidden, value, config.distance_scale)
+    if kind == "state_network":
+        return StateNetwork(meta["nq"], rows, hidden=config.hidden, value=value)
+    return ObjectContactNetwork(meta["facets"], config.hidden, value, config.distance_scale)
+
+
+def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
+    """The scene's model (γ, facets of ``meta``) with the learnable K and D of ``config``."""
+    torch.manual_seed(config.seed)
+    value = config.initial_stiffness or meta["paper_stiffness"]
+    stiffness = _parameterization(config.stiffness, value, meta, config)
+    if config.damping == "paper":
+        damping = Relative(0.1, learnable=False)
+    elif config.damping == "relative":
+        damping = Relative(0.1)
+    elif config.damping == "none":
+        damping = None
+    else:
+        damping = _parameterization(config.damping, 0.1 * value, meta, config)
+    return ComplementarityFree(stiffness, damping, gamma=meta["gamma"], facets=meta["facets"])
+
+
+def constant_model(stiffness: float, meta: dict) -> ComplementarityFree:
+    """The paper's model of the scene at constant K = ``stiffness``: D = 0.1·K, fixed."""
+    return ComplementarityFree(
+        Constant(stiffness, learnable=False),
+        Relative(0.1, learnable=False),
+        gamma=meta["gamma"],
+        facets=meta["facets"],
+    )
+
+
+def save_checkpoint(path: str | Path, model: ComplementarityFree, config: FitConfig, meta: dict):
+    """Write ``model``'s ``state_dict`` with ``config`` and the dataset ``meta`` atomically."""
+    payload = {
+        "version": CHECKPOINT_VERSION,
+        "config": asdict(config),
+        "meta": meta,
+        "state_dict": model.state_dict(),
+    }
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    return atomic_write(path, lambda f: f.write(buffer.getvalue()), binary=True)
+
+
+def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, dict]:
+    """Rebuild the model saved by :func:`save_checkpoint`: ``(model, config, meta)``."""
+    path = Path(path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as error:
+        raise ValueError(f"{path}: not a readable checkpoint ({error})") from None
+    if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
+        found = payload.get("version") if isinstance(payload, dict) else None
+        raise ValueError(
+            f"{path}: expected checkpoint version {CHECKPOINT_VERSION}, found {found!r}"
+        )
+    config = FitConfig(**payload["config"])
+    meta = payload["meta"]
+    model = build_model(config, meta)
+    state = payload["state_dict"]
+    dtype = next(iter(state.values())).dtype
+    model = model.to(dtype)
+    model.load_state_dict(state)
+    return model, config, meta
+
+
+def load_model(path: str | Path) -> ComplementarityFree:
+    """The model of the checkpoint at ``path`` (see :func:`load_checkpoint`)."""
+    return load_checkpoint(path)[0]
