@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -90,10 +91,10 @@ def scene_header(scene: Scene | BoxPushingScene) -> dict:
         "system": system_header(scene.system),
         "u_lower": lower.tolist(),
         "u_upper": upper.tolist(),
-        "nq": scene.env.nq,
-        "nv": scene.env.nv,
+        "nq": scene.plant.nq,
+        "nv": scene.plant.nv,
         "nu": scene.system.n_robot,
-        "slots": scene.env.detector.slots,
+        "slots": scene.plant.detector.slots,
         "control_dt": scene.control_dt,
     }
 
@@ -106,14 +107,14 @@ def collect_trajectory(
     Returns the trajectory's arrays (the layout of a trajectory file, without ``meta``).
     """
     initial, target = scene.sample(seed)
-    scene.env.reset(initial, target)
+    scene.plant.reset(initial, target)
     policy = make_policy(actions, scene, seed, target, noise)
     rows = {key: [] for key in (*STATE_ARRAYS, *CONTACT_ARRAYS)}
-    q = scene.env.state()
+    q = scene.plant.state()
     for _ in range(steps):
-        contacts = scene.env.contacts(torch.float64)
+        contacts = scene.plant.contacts(torch.float64)
         u = policy(q, contacts)
-        q_next = scene.env.step(u)
+        q_next = scene.plant.step(u)
         for key, value in (("q", q), ("u", u), ("q_next", q_next)):
             rows[key].append(value)
         for key in CONTACT_ARRAYS:
@@ -174,7 +175,7 @@ def collect(
     task: str | None = None,
     noise: float | None = None,
     progress: bool = True,
-    mpc_options: dict | None = None,
+    planner: Callable[[Scene], object] | None = None,
 ) -> Path:
     """Collect trajectories ``0 … trajectories−1`` into ``directory``; returns the manifest.
 
@@ -197,7 +198,9 @@ def collect(
         noise: exploration noise as a fraction of the control bound (None: each policy's
             default, 0.3 random and 0.1 MPC).
         progress: show a tqdm bar.
-        mpc_options: options of the MPC (``max_iter``, ``compile``, ...).
+        planner: ``scene ↦`` what plans the MPC actions of a scene (e.g. the environment's
+            :class:`~torchcontact.mpc.controller.ContactImplicitMPC`); required by ``"mpc"``
+            and ``"mixed"`` actions.
     """
     if actions not in ACTIONS:
         raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
@@ -209,7 +212,11 @@ def collect(
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     directory = Path(directory)
-    built = make_scene(scene, obj, task, **(mpc_options or {}))
+    if actions != "random" and planner is None:
+        raise ValueError(f"planner is required by actions={actions!r}")
+    built = make_scene(scene, obj, task)
+    if planner is not None and actions != "random":
+        built.planner = planner(built)
     manifest = {
         "format": FORMAT,
         "version": VERSION,

@@ -81,9 +81,9 @@ class ReachPolicy:
         self.rng = np.random.default_rng(seed)
         self.lower, self.upper = scene.control_bounds
         self.noise = CorrelatedNoise(self.rng, self.lower, self.upper, noise, correlation)
-        vertices = scene.env.object.vertices
+        vertices = scene.plant.object.vertices
         self.box = vertices.min(0), vertices.max(0)
-        self.n_tips = scene.fingertips(torch.as_tensor(scene.env.state())).shape[-2]
+        self.n_tips = scene.fingertips(torch.as_tensor(scene.plant.state())).shape[-2]
         self.steps_left = 0
         self.goals = np.zeros((self.n_tips, 3))
 
@@ -126,7 +126,9 @@ class MPCPolicy:
     def __init__(self, scene: Scene, seed: int, target: np.ndarray, noise: float = 0.1):
         if not noise >= 0.0:
             raise ValueError(f"noise must be non-negative, got {noise!r}")
-        self.mpc = scene.mpc
+        if scene.planner is None:
+            raise ValueError("scene.planner must be set to collect MPC actions (see collect)")
+        self.mpc = scene.planner
         self.mpc.reset()
         self.rng = np.random.default_rng(seed)
         self.lower, self.upper = scene.control_bounds
@@ -155,7 +157,7 @@ class PushPolicy:
         self, scene: BoxPushingScene, seed: int, noise: float = 0.3, correlation: float = 0.8
     ):
         self.lower, self.upper = scene.control_bounds
-        self.nominal = np.array([scene.env.config.push])
+        self.nominal = np.array([scene.plant.config.push])
         rng = np.random.default_rng(seed)
         self.noise = CorrelatedNoise(rng, self.lower, self.upper, noise, correlation)
 

@@ -1,28 +1,31 @@
 """The scenes transitions are collected in: a MuJoCo plant and the paper's model of it.
 
 A :class:`Scene` pairs the simulated plant (which produces the data) with the quasi-dynamic
-system, contact model, time step and joint layout the paper's MPC uses for that plant (which
-the data are fitted to). ``make_scene("trifinger", "cube")`` builds one from the evaluation
-suites of :mod:`torchcontact.mpc.suites`, so the learned model is the MPC's model.
+system, contact model, time step and joint layout of its environment's model (which the data
+are fitted to). ``make_scene("trifinger", "cube")`` builds one from the registered
+environment (:mod:`torchcontact.environments`), so the learned model is the MPC's model.
+Collecting with MPC actions needs a planner, which the caller attaches (``scene.planner``):
+learning does not depend on the MPC package.
 
 ``make_scene("box_pushing")`` is the paper's box-pushing scene (a bar pushing a row of 10
-cubes, :mod:`torchcontact.experiments.box_pushing`) as a data source: its plant drives the bar
-kinematically (:class:`~torchcontact.experiments.box_pushing_plant.BoxPushingPlant`) and its
-model is the experiment's quasi-dynamic system with the CF model at K = 1, exact ``max(·, 0)``.
-It has no manipulation task and so no MPC: its actions are random pushes.
+cubes, :mod:`torchcontact.sim.box_pushing`) as a data source: its plant drives the bar
+kinematically (:class:`~torchcontact.sim.box_pushing.BoxPushingPlant`) and its model is the
+experiment's quasi-dynamic system with the CF model at K = 1, exact ``max(·, 0)``. It has no
+manipulation task and so no MPC: its actions are random pushes.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from torchcontact.environments import ENVIRONMENTS, environment
+from torchcontact.environments.base import Environment
 from torchcontact.integrate import JointLayout
-from torchcontact.model import ComplementarityFree
-from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.suites import SUITES
+from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.sim import box_pushing as bp
 from torchcontact.sim.box_pushing import BoxPushingPlant
 from torchcontact.sim.hands import HandEnv
@@ -31,76 +34,83 @@ from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
 
 BOX_PUSHING = "box_pushing"
-SCENES = (*SUITES, BOX_PUSHING)
+SCENES = (*ENVIRONMENTS, BOX_PUSHING)
 """Scene names: ``"fingertips"``, ``"trifinger"``, ``"allegro"`` and ``"box_pushing"``."""
 
 
 @dataclass
 class Scene:
-    """A plant and the paper's MPC model of it.
+    """A plant and its environment's model of it.
 
     Attributes:
         name: the scene (one of :data:`SCENES`).
         object: the manipulated object's name.
-        task: the suite task whose sampler gives initial and target poses.
-        env: the MuJoCo plant; one ``env.step(u)`` is one model step.
-        mpc: the paper's MPC for this plant (K, D, γ, facets, h, control box, cost).
+        task: the environment's task whose sampler gives initial and target poses.
+        environment: the environment description.
+        plant: the MuJoCo plant; one ``plant.step(u)`` is one model step.
+        model: the paper's contact model (constant K, D = 0.1·K, γ = 100, 4 facets).
+        planner: what plans MPC actions (``plan(q, contacts, target_p, target_quat)`` with
+            a ``.control``, ``reset()``, ``dtype``), attached by the caller; None: none.
     """
 
     name: str
     object: str
     task: str
-    env: Plant
-    mpc: ContactImplicitMPC
+    environment: Environment
+    plant: Plant
+    model: ComplementarityFree
+    planner: object | None = None
 
     @property
     def system(self) -> QuasiDynamic:
         """The quasi-dynamic system ``u ↦ (Q, b)`` of the model."""
-        return self.mpc.system
-
-    @property
-    def model(self) -> ComplementarityFree:
-        """The paper's contact model (constant K, D = 0.1·K, γ = 100, 4 facets)."""
-        return self.mpc.model
+        return self.environment.system(self.plant)
 
     @property
     def h(self) -> float:
         """The model's time step [s]."""
-        return self.mpc.h
+        return self.environment.h(self.plant)
 
     @property
     def layout(self) -> JointLayout:
-        return self.mpc.layout
+        return self.environment.layout
 
     @property
     def paper_stiffness(self) -> float:
         """The paper's constant K of this scene."""
-        return SUITES[self.name].stiffness
+        return self.environment.stiffness
 
     @property
     def control_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """``(n_u,), (n_u,)`` lower and upper bound of one step's control."""
-        n_u = self.system.n_robot
-        return self.mpc.lower[0, :n_u].numpy(), self.mpc.upper[0, :n_u].numpy()
+        bound = np.full(self.system.n_robot, self.environment.control_bound(self.plant))
+        return -bound, bound
 
     @property
     def control_dt(self) -> float:
         """Simulated time per step [s] (MuJoCo substeps × their time step)."""
-        skip = self.env.hand.frame_skip if isinstance(self.env, HandEnv) else self.env.frame_skip
-        return skip * float(self.env.model.opt.timestep)
+        skip = (
+            self.plant.hand.frame_skip if isinstance(self.plant, HandEnv) else self.plant.frame_skip
+        )
+        return skip * float(self.plant.model.opt.timestep)
 
     @property
     def pose_weights(self) -> tuple[float, float]:
         """The MPC's final-cost weights (position [1/m²], orientation) of the pose error."""
-        return self.mpc.cost.position, self.mpc.cost.orientation
+        cost = self.environment.cost(self.plant)
+        return cost.position, cost.orientation
+
+    @functools.cached_property
+    def _fingertips(self) -> torch.nn.Module:
+        return self.environment.fingertips(torch.float64)
 
     def fingertips(self, q: torch.Tensor) -> torch.Tensor:
-        """Fingertip positions ``(..., n_tips, 3)`` [m] of states ``q (..., nq)``."""
-        return self.mpc.fingertips(q.to(self.mpc.dtype))
+        """Fingertip positions ``(..., n_tips, 3)`` [m] of states ``q (..., nq)`` (float64)."""
+        return self._fingertips(q.to(torch.float64))
 
     def sample(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """Initial and target object poses ``(7,), (7,)`` of seed ``seed`` (the suite's)."""
-        return SUITES[self.name].sample(self.env, self.task, self.object, seed)
+        """Initial and target object poses ``(7,), (7,)`` of seed ``seed``."""
+        return self.environment.sample(self.plant, self.task, seed)
 
 
 @dataclass
@@ -110,7 +120,7 @@ class BoxPushingScene:
 
     Attributes:
         name: ``"box_pushing"``; object: ``"cube"``; task: ``"push"``.
-        env: the plant; one ``env.step(u)`` moves the bar by ``u`` [m] in one model step.
+        plant: the plant; one ``plant.step(u)`` moves the bar by ``u`` [m] in one model step.
         system: the quasi-dynamic system (ε = 40, Kᵣ = 500 N/m, the cubes' gravity).
         model: CF at the experiment's K = 1, D = 0.1·K (as the MPC scenes), exact max.
         layout: the cubes' free joints, then the bar's slide joint.
@@ -120,7 +130,7 @@ class BoxPushingScene:
     name: str
     object: str
     task: str
-    env: BoxPushingPlant
+    plant: BoxPushingPlant
     system: QuasiDynamic
     model: ComplementarityFree
     layout: JointLayout
@@ -134,24 +144,24 @@ class BoxPushingScene:
     @property
     def paper_stiffness(self) -> float:
         """The box-pushing experiment's K."""
-        return self.env.config.contact_stiffness
+        return self.plant.config.contact_stiffness
 
     @property
     def control_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The bar moves towards the cubes by 0 to twice the experiment's push per step [m]."""
-        return np.array([2 * min(self.env.config.push, 0.0)]), np.array([0.0])
+        return np.array([2 * min(self.plant.config.push, 0.0)]), np.array([0.0])
 
     @property
     def control_dt(self) -> float:
-        return self.env.frame_skip * float(self.env.model.opt.timestep)
+        return self.plant.frame_skip * float(self.plant.model.opt.timestep)
 
     def sample(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """The row of cubes, each shifted and turned at random (:attr:`jitter`), at rest; the
         second pose (unused: the scene has no goal) is the first cube's."""
         rng = np.random.default_rng(seed)
-        q = self.env.initial_state
+        q = self.plant.initial_state
         dx, dy, yaw = self.jitter
-        for i in range(self.env.config.cubes):
+        for i in range(self.plant.config.cubes):
             at = 7 * i  # the cubes' free joints come first in q
             q[at : at + 2] += rng.uniform([-dx, -dy], [dx, dy])
             angle = rng.uniform(-yaw, yaw)
@@ -173,7 +183,7 @@ def box_pushing_scene(config: bp.BoxPushingConfig | None = None) -> BoxPushingSc
         name=BOX_PUSHING,
         object="cube",
         task="push",
-        env=BoxPushingPlant(config),
+        plant=BoxPushingPlant(config),
         system=built.system,
         model=model,
         layout=built.layout,
@@ -181,14 +191,11 @@ def box_pushing_scene(config: bp.BoxPushingConfig | None = None) -> BoxPushingSc
     )
 
 
-def make_scene(
-    name: str, obj: str = "cube", task: str | None = None, **mpc_options
-) -> Scene | BoxPushingScene:
-    """The plant of suite ``name`` with object ``obj`` and the paper's MPC of it, or the
-    box-pushing scene (object ``"cube"``, task ``"push"``, no MPC).
+def make_scene(name: str, obj: str = "cube", task: str | None = None) -> Scene | BoxPushingScene:
+    """The plant of environment ``name`` with object ``obj`` and the paper's model of it, or
+    the box-pushing scene (object ``"cube"``, task ``"push"``, no MPC).
 
-    ``task`` defaults to the suite's first task defined for ``obj``; ``mpc_options`` go to
-    the MPC (``max_iter``, ``compile``, ...).
+    ``task`` defaults to the environment's first task defined for ``obj``.
     """
     if name == BOX_PUSHING:
         if obj != "cube" or task not in (None, "push"):
@@ -196,16 +203,15 @@ def make_scene(
                 f"box_pushing has object 'cube' and task 'push' only, got {obj!r}, {task!r}"
             )
         return box_pushing_scene()
-    if name not in SUITES:
+    if name not in ENVIRONMENTS:
         raise ValueError(f"name must be one of {SCENES}, got {name!r}")
-    suite = SUITES[name]
-    tasks = [t for t, o in suite.pairs if o == obj]
+    env = environment(name)
+    tasks = [t for t, o in env.pairs if o == obj]
     if not tasks:
-        raise ValueError(f"obj must be an object of the {name} suite {suite.objects}, got {obj!r}")
+        raise ValueError(f"obj must be an object of the {name} suite {env.objects}, got {obj!r}")
     if task is None:
         task = tasks[0]
     elif task not in tasks:
         raise ValueError(f"task must be one of {tasks} for {name} with {obj}, got {task!r}")
-    env = suite.make_env(obj)
-    mpc = suite.make_mpc(obj, suite.stiffness, plant=env, **mpc_options)
-    return Scene(name=name, object=obj, task=task, env=env, mpc=mpc)
+    plant = env.make_plant(obj)
+    return Scene(name, obj, task, env, plant, paper_model(env.stiffness))

@@ -14,6 +14,7 @@ import argparse
 import dataclasses
 import math
 import os
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -26,7 +27,13 @@ from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
 from torchcontact.mpc.planners import PLANNERS
-from torchcontact.mpc.trials import DEFAULT_MODEL, MPC_MODELS, TrialConfig, run_trials
+from torchcontact.mpc.trials import (
+    DEFAULT_MODEL,
+    MPC_MODELS,
+    TrialConfig,
+    run_trials,
+    trial_configs,
+)
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
 from torchcontact.sim.objects import COLLISIONS
@@ -176,16 +183,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def trial_configs(args: argparse.Namespace) -> list[TrialConfig]:
-    """The configuration of every selected trial, from the parsed options."""
-    given = {**vars(args), **dataclasses.asdict(args.settings)}
-    names = [f.name for f in dataclasses.fields(TrialConfig)]
-    common = {k: given[k] for k in names if k in given and k not in ("task", "object", "seed")}
-    return [
-        TrialConfig(task=task, object=obj, seed=seed, **common)
-        for task, obj in args.pairs
-        for seed in range(args.trials)
-    ]
+def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
+    """The configuration of every selected trial: the options named as the fields of
+    :class:`TrialConfig`, the solver settings and the selected pairs and seeds."""
+    set_apart = {"env", "task", "object", "seed", "max_steps", *asdict(args.settings)}
+    names = [f.name for f in dataclasses.fields(TrialConfig) if f.name not in set_apart]
+    options = {name: getattr(args, name) for name in names if hasattr(args, name)}
+    return trial_configs(
+        args.env, args.pairs, range(args.trials), args.settings, args.max_steps, **options
+    )
 
 
 def _about(args: argparse.Namespace) -> str:
@@ -245,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     torch.set_num_threads(1)
     args = parse_args(argv)
-    configs = trial_configs(args)
+    configs = configs_of(args)
     out = Path("results") / configs[0].variant if args.out is None else args.out
     videos = [c for c in configs if c.seed == 0] if args.video else []
     print(f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}")

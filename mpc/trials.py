@@ -28,7 +28,7 @@ from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ContactModel, RelaxedQP, contact_model
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.relaxed_qp import paper_relaxation
+from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
 
 SCENES_VERSION = 8
@@ -165,6 +165,41 @@ class TrialRecord:
             config["tips"] = tuple(config["tips"])
         outcome = {f.name: record[f.name] for f in fields(cls) if f.name != "config"}
         return cls(config=TrialConfig(**config), **outcome)
+
+
+def trial_configs(
+    env: str,
+    pairs: Sequence[tuple[str, str]],
+    seeds: Sequence[int],
+    settings: MPCSettings | None = None,
+    max_steps: int | None = None,
+    **options,
+) -> list[TrialConfig]:
+    """Configurations of ``seeds`` on each (task, object) of ``pairs`` in environment ``env``
+    (registered name): solver ``settings`` (default the environment's default preset),
+    ``max_steps`` (default its criterion's), the paper model at the environment's default K
+    unless ``options`` (other :class:`TrialConfig` fields) say otherwise."""
+    description = environment(env, options.get("robot"), options.get("tips"))
+    settings = description.preset() if settings is None else settings
+    if options.get("model") == "relaxed_qp":
+        options.setdefault("relaxation", PAPER_RELAXATION)
+    elif not options.get("learned"):
+        options.setdefault("stiffness", description.default_stiffness)
+    options.setdefault("stiffness", None)
+    steps = description.criterion.max_steps if max_steps is None else max_steps
+    return [
+        TrialConfig(
+            env=env,
+            task=task,
+            object=obj,
+            seed=seed,
+            max_steps=steps,
+            **asdict(settings),
+            **options,
+        )
+        for task, obj in pairs
+        for seed in seeds
+    ]
 
 
 def trial_model(config: TrialConfig, h: float) -> ContactModel:

@@ -26,8 +26,10 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from studies import report
-from torchcontact.environments.presets import NAMES, PAPER, PRESETS, MPCSettings
-from torchcontact.mpc import evaluate
+from torchcontact.environments import environment
+from torchcontact.environments.presets import NAMES, PAPER, MPCSettings
+from torchcontact.mpc.report import summarize
+from torchcontact.mpc.trials import run_trials, trial_configs
 from torchcontact.results import pareto_front, read_json
 
 PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
@@ -47,7 +49,7 @@ def _grid() -> dict[str, MPCSettings]:
         dict(dtype="float32"),
         dict(compile=False),
     ]
-    presets = [p for env in PAIRS for p in PRESETS[env].values()]
+    presets = [p for env in PAIRS for p in environment(env).presets.values()]
     settings = [base, *(dataclasses.replace(base, **v) for v in variations), *presets]
     return {s.label: s for s in settings}  # labels are unique per settings: presets dedupe
 
@@ -62,6 +64,11 @@ def _folder(label: str) -> str:
     return label.replace(" ", "_")
 
 
+def sweep_configs(env: str, label: str, trials: int, max_steps: int | None = None):
+    """The trials of one (environment, setting): seeds 0…trials−1 of each of its pairs."""
+    return trial_configs(env, PAIRS[env], range(trials), GRID[label], max_steps)
+
+
 def run_sweep(
     out: Path,
     envs: Sequence[str],
@@ -70,40 +77,36 @@ def run_sweep(
     workers: int = 1,
     max_steps: int | None = None,
     progress: bool = True,
-) -> None:
-    """Run every (environment, setting, pair) not finished yet (``torchcontact run``)."""
-    units = [(env, label, pair) for env in envs for label in labels for pair in PAIRS[env]]
-    for env, label, (task, obj) in tqdm(units, desc="MPC settings × pairs", disable=not progress):
-        s = GRID[label]
-        argv = [env, "--task", task, "--object", obj, "--trials", str(trials)]
-        argv += ["--max-iter", str(s.max_iter), "--memory", str(s.memory)]
-        argv += ["--horizon", str(s.horizon), "--dtype", s.dtype, "--workers", str(workers)]
-        argv += ["--gaps", s.gaps]
-        argv += ["--out", str(out / env / _folder(label)), "--no-progress"]
-        argv += [] if s.compile else ["--no-compile"]
-        argv += [] if max_steps is None else ["--max-steps", str(max_steps)]
-        evaluate.main(argv)
+) -> dict[tuple[str, str], list[dict]]:
+    """Run every (environment, setting) not finished yet; returns their records by
+    (environment, label). Each setting's records resume from ``out/ENV/LABEL/trials``."""
+    units = [(env, label) for env in envs for label in labels]
+    records = {}
+    for env, label in tqdm(units, desc="MPC settings", disable=not progress):
+        configs = sweep_configs(env, label, trials, max_steps)
+        folder = out / env / _folder(label)
+        done = run_trials(configs, workers=workers, out=folder, progress=False)
+        records[env, label] = [record.to_dict() for record in done]
+    return records
 
 
 def collect(out: Path, envs: Sequence[str], labels: Sequence[str], trials: int) -> list[dict]:
-    """One row per (environment, setting) from the trial records of the swept pairs."""
+    """One row per (environment, setting) from the saved trial records of the swept pairs."""
     rows = []
     for env in envs:
         for label in labels:
             settings = GRID[label]
-            folder = out / env / _folder(label) / "trials"
             records = []
-            for task, obj in PAIRS[env]:
-                for seed in range(trials):
-                    path = folder / f"{evaluate.trial_name(env, task, obj, seed)}.json"
-                    if not path.exists():
-                        raise FileNotFoundError(f"missing trial record {path}: run the sweep")
-                    record = read_json(path)
-                    if any(record[k] != v for k, v in dataclasses.asdict(settings).items()):
-                        raise ValueError(f"{path} was run with other settings than {label!r}")
-                    records.append(record)
-            summary = evaluate.summarize(records)
-            presets = [name for name in NAMES if PRESETS[env][name] == settings]
+            for config in sweep_configs(env, label, trials):
+                path = out / env / _folder(label) / "trials" / f"{config.name}.json"
+                if not path.exists():
+                    raise FileNotFoundError(f"missing trial record {path}: run the sweep")
+                record = read_json(path)
+                if any(record[k] != v for k, v in dataclasses.asdict(settings).items()):
+                    raise ValueError(f"{path} was run with other settings than {label!r}")
+                records.append(record)
+            summary = summarize(records)
+            presets = [name for name in NAMES if environment(env).preset(name) == settings]
             rows.append(
                 {
                     "env": env,
@@ -148,7 +151,7 @@ def preset_report(rows: Sequence[dict]) -> list[str]:
     lines = []
     for env in dict.fromkeys(r["env"] for r in rows):
         for name in NAMES:
-            settings = PRESETS[env][name]
+            settings = environment(env).preset(name)
             row = next((r for r in rows if r["env"] == env and r["label"] == settings.label), None)
             if row is None:
                 lines.append(f"- {env}, `{name}`: not measured")

@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn import data
 from torchcontact.learn.data import DataFormatError, collect, load, read_manifest
 from torchcontact.learn.scenes import make_scene
+from torchcontact.mpc.controller import ContactImplicitMPC
 
 SCENE = {"scene": "trifinger", "obj": "cube", "steps": 6, "actions": "random"}
 
@@ -42,7 +44,7 @@ def test_round_trip_keeps_shapes_metadata_and_transitions(dataset):
     lower, upper = (torch.tensor(meta[k], dtype=torch.float64) for k in ("u_lower", "u_upper"))
     assert bool(((transitions.u >= lower) & (transitions.u <= upper)).all())
     # The stored contacts are the scene detector's at q.
-    detector = make_scene("trifinger", "cube").env.detector
+    detector = make_scene("trifinger", "cube").plant.detector
     again = detector(transitions.q)
     assert torch.equal(again.active, transitions.contacts.active)
     torch.testing.assert_close(again.jac_normal, transitions.contacts.jac_normal)
@@ -104,7 +106,13 @@ def test_collection_resumes_after_an_interruption(tmp_path, monkeypatch):
 
 
 def test_mixed_actions_alternate_random_and_mpc(tmp_path):
-    options = {"max_iter": 3, "compile": False}
+    settings = MPCSettings(max_iter=3, compile=False)
+
+    def planner(scene):
+        return ContactImplicitMPC.from_env(scene.environment, scene.plant, settings=settings)
+
+    with pytest.raises(ValueError, match="planner is required by actions='mixed'"):
+        collect(tmp_path, "trifinger", trajectories=2, steps=2, actions="mixed")
     collect(
         tmp_path,
         "trifinger",
@@ -112,7 +120,7 @@ def test_mixed_actions_alternate_random_and_mpc(tmp_path):
         steps=2,
         actions="mixed",
         progress=False,
-        mpc_options=options,
+        planner=planner,
     )
     entries = read_manifest(tmp_path)["trajectories"]
     assert [e["actions"] for e in entries] == ["random", "mpc"]

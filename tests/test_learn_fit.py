@@ -110,7 +110,7 @@ def test_config_rejects_bad_values():
 def test_one_step_rollout_equals_the_one_step_error(transitions):
     """A 1-step rollout re-detects contacts at the recorded states: the same prediction."""
     meta = transitions.meta
-    detector = make_scene("trifinger", "cube").env.detector
+    detector = make_scene("trifinger", "cube").plant.detector
     model = constant_model(0.5, meta)
     rollout = rollout_error(model, transitions, detector, horizon=1, stride=1)
     data = StepData.from_transitions(transitions, meta["facets"], torch.float64)

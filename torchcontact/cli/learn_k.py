@@ -9,7 +9,7 @@ The pipeline, one stage per line of :func:`run`::
     evaluation = ... paper K, best K, learned     # one step and 10-step rollouts on test
 
 Writes ``OUT/SCENE_OBJECT/results.json`` (everything measured), ``model.pt`` (the learned
-model's checkpoint, :func:`~torchcontact.learn.fit.load_checkpoint`) and ``history.csv``
+model's checkpoint, :func:`~torchcontact.checkpoint.load_checkpoint`) and ``history.csv``
 (losses per epoch); ``--json PATH`` writes the headline figures. Errors are means over the
 test windows; the combined error is the MPC's ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)``.
 """
@@ -31,6 +31,7 @@ from torchcontact.checkpoint import (
     constant_model,
     save_checkpoint,
 )
+from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import (
     log_grid,
@@ -41,7 +42,9 @@ from torchcontact.learn.evaluate import (
 )
 from torchcontact.learn.fit import StepData, fit
 from torchcontact.learn.policies import ACTIONS
-from torchcontact.learn.scenes import BOX_PUSHING, SCENES, make_scene
+from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
+from torchcontact.model import paper_model
+from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.results import write_csv, write_json
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
@@ -122,6 +125,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
+def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
+    """The MPC whose actions the data are collected with: the paper's model at the paper's K
+    and the paper's solver settings."""
+    env = scene.environment
+    settings = MPCSettings(compile=compile)
+    return ContactImplicitMPC.from_env(
+        env, scene.plant, paper_model(env.stiffness), settings=settings
+    )
+
+
 def run(args: argparse.Namespace) -> dict:
     """Collect, split, sweep, fit and evaluate; returns the record written to results.json."""
     progress = not args.no_progress
@@ -136,13 +149,13 @@ def run(args: argparse.Namespace) -> dict:
         task=args.task,
         noise=args.noise,
         progress=progress,
-        mpc_options={"compile": not args.no_compile},
+        planner=lambda scene: collection_mpc(scene, compile=not args.no_compile),
     )
     transitions = load(args.data, args.trajectories)
     meta = transitions.meta
     splits = dict(zip(("train", "val", "test"), transitions.split(seed=args.seed), strict=True))
     steps = {name: StepData.from_transitions(part, meta["facets"]) for name, part in splits.items()}
-    detector = make_scene(args.scene, args.object, meta["task"]).env.detector
+    detector = make_scene(args.scene, args.object, meta["task"]).plant.detector
     weights = tuple(meta["pose_weights"])
 
     sweep = sweep_constant(args.grid, splits["val"], detector, args.horizon, args.stride)

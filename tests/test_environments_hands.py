@@ -1,4 +1,5 @@
-"""Hand MPC: the paper's settings, a plan inside the box, and `run trifinger|allegro` smoke runs."""
+"""The hand environments' MPC: the paper's settings, a plan inside the box, the tilt cost, and
+`run trifinger|allegro` smoke runs."""
 
 from __future__ import annotations
 
@@ -10,29 +11,39 @@ import torch
 import trimesh
 
 from torchcontact.cli import main
-from torchcontact.mpc.evaluate import SUMMARY_KEYS
-from torchcontact.mpc.hands import MPC_SETTINGS, hand_mpc, tips_before_sliding
-from torchcontact.mpc.suites import SUITES
-from torchcontact.sim.hands import HANDS, Hand, HandEnv
+from torchcontact.environments import ENVIRONMENTS, environment
+from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV, tips_before_sliding
+from torchcontact.environments.presets import MPCSettings
+from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.report import SUMMARY_KEYS
+from torchcontact.sim.hands import HANDS, Hand
 from torchcontact.sim.objects import make_object, object_names
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
+EAGER = MPCSettings(compile=False)
+
+
+def test_the_hands_are_registered_environments():
+    assert all(ENVIRONMENTS[name].hand is hand for name, hand in HANDS.items())
+    assert environment("trifinger") is TRIFINGER_ENV and environment("allegro") is ALLEGRO_ENV
 
 
 @pytest.mark.parametrize("hand", sorted(HANDS))
 def test_a_plan_stays_in_its_box_and_lowers_the_cost(hand):
-    env = HandEnv(hand, "cube")
-    mpc = hand_mpc(hand, max_iter=10)
-    q = torch.as_tensor(env.state())
-    target = env.resting_pose(env.support_centre, [0.0, 0.0, 0.0, 1.0])
+    env = environment(hand)
+    plant = env.make_plant("cube")
+    mpc = ContactImplicitMPC.from_env(env, plant, settings=MPCSettings(max_iter=10, compile=False))
+    q = torch.as_tensor(plant.state())
+    target = plant.resting_pose(plant.support_centre, [0.0, 0.0, 0.0, 1.0])
     tp, tq = torch.as_tensor(target[:3]), torch.as_tensor(target[3:])
-    contacts = env.contacts(mpc.dtype)
+    contacts = plant.contacts(mpc.dtype)
     plan = mpc.plan(q, contacts, tp, tq)
-    bound = MPC_SETTINGS[hand].control_bound
+    bound = env.control_bound(plant)
+    assert bound == env.model.control_bound
     assert plan.controls.shape == (4, HANDS[hand].n_joints)
     assert float(plan.controls.abs().max()) <= bound + 1e-12
     with torch.no_grad():
-        args = (q, mpc.frozen_rows(q, contacts), tp, tq)
+        args = (q, mpc.freeze(q, contacts), tp, tq)
         idle = mpc.objective(torch.zeros_like(plan.controls), *args)
         planned = mpc.objective(plan.controls, *args)
     assert float(planned) < float(idle)
@@ -42,37 +53,35 @@ def test_only_objects_that_tip_before_they_slide_get_the_tilt_cost():
     tipping = {name for name in object_names() if tips_before_sliding(make_object(name))}
     # the stick, a rod like the paper's, rolls over its narrow flat when pushed sideways
     assert tipping == {"binoculars", "camera", "rubber_duck", "stick", "water_bottle"}
-    assert hand_mpc("trifinger").cost.tilt == 0  # no object given: the paper's cost
-    assert hand_mpc("trifinger", obj=make_object("cube")).cost.tilt == 0
-    weight = MPC_SETTINGS["trifinger"].tilt
-    assert weight > 0 and hand_mpc("trifinger", obj=make_object("camera")).cost.tilt == weight
-    # the suites hand the object over; the Allegro has no tilt weight
-    assert SUITES["trifinger"].make_mpc("rubber_duck", None, compile=False).cost.tilt == weight
-    assert SUITES["allegro"].make_mpc("rubber_duck", None, compile=False).cost.tilt == 0
+    assert TRIFINGER_ENV.model.cost.tilt == 0  # the paper's cost
+    assert TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("cube")).tilt == 0
+    weight = TRIFINGER_ENV.model.tilt
+    assert weight > 0 and TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("camera")).tilt == weight
+    # the MPC takes the cost of its plant's object; the Allegro has no tilt weight
+    duck = TRIFINGER_ENV.make_plant("rubber_duck")
+    assert ContactImplicitMPC.from_env(TRIFINGER_ENV, duck, settings=EAGER).cost.tilt == weight
+    duck = ALLEGRO_ENV.make_plant("rubber_duck")
+    assert ALLEGRO_ENV.model.tilt == 0
+    assert ContactImplicitMPC.from_env(ALLEGRO_ENV, duck, settings=EAGER).cost.tilt == 0
 
 
-def test_a_suite_mpc_takes_its_object_from_the_plant_instead_of_building_it_again(
-    tmp_path, monkeypatch
-):
+def test_an_mpc_takes_its_object_from_the_plant_instead_of_building_it_again(tmp_path, monkeypatch):
     path = tmp_path / "tall.stl"
     trimesh.creation.cylinder(radius=0.01, height=0.06).export(path)  # tips before it slides
-    suite = SUITES["trifinger"]
-    plant = suite.make_env(str(path))
+    plant = TRIFINGER_ENV.make_plant(str(path))
     builds = []
     build = Hand.object_mesh
     monkeypatch.setattr(Hand, "object_mesh", lambda *a, **k: builds.append(a) or build(*a, **k))
-    mpc = suite.make_mpc(str(path), None, plant=plant, compile=False)
+    mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, plant, settings=EAGER)
     assert builds == []  # a user mesh is not loaded (and decomposed) a second time
-    assert tips_before_sliding(plant.object) and mpc.cost.tilt == MPC_SETTINGS["trifinger"].tilt
-    suite.make_mpc(str(path), None, compile=False)  # without its plant: built anew
-    assert len(builds) == 1
+    assert tips_before_sliding(plant.object) and mpc.cost.tilt == TRIFINGER_ENV.model.tilt
 
 
 def test_the_mpc_fingertips_are_the_plants_sites():
-    env = HandEnv("allegro", "cube")
-    mpc = hand_mpc("allegro")
-    tips = mpc.fingertips(torch.as_tensor(env.state()))
-    np.testing.assert_allclose(tips.numpy(), env.fingertips(), atol=1e-6)
+    plant = ALLEGRO_ENV.make_plant("cube")
+    mpc = ContactImplicitMPC.from_env(ALLEGRO_ENV, plant, settings=EAGER)
+    tips = mpc.fingertips(torch.as_tensor(plant.state()))
+    np.testing.assert_allclose(tips.numpy(), plant.fingertips(), atol=1e-6)
 
 
 @pytest.mark.parametrize("hand", sorted(HANDS))

@@ -7,7 +7,7 @@ import torch
 
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import main
-from torchcontact.mpc.evaluate import learned_model
+from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
 
 HEADLINE = (
@@ -53,7 +53,7 @@ def test_tiny_learn_k_run(tmp_path, capsys):
     trial = read_json(tmp_path / "loop" / "trials" / "trifinger_learned_in-hand_cube_seed0.json")
     assert trial["learned"] == str(checkpoint.resolve()) and trial["stiffness"] is None
     assert trial["steps"] == 3
-    planned = learned_model(checkpoint, torch.float64)
+    planned = trial_model(TrialRecord.from_dict(trial).config, h=0.1)
     assert not any(p.requires_grad for p in planned.parameters())
     for a, b in zip(planned.state_dict().values(), model.state_dict().values(), strict=True):
         torch.testing.assert_close(a, b.to(a.dtype))
@@ -65,8 +65,8 @@ def test_run_rejects_bad_learned_options(tmp_path, capsys):
     assert "--learned must be an existing checkpoint" in capsys.readouterr().err
     (tmp_path / "model.pt").write_bytes(b"")
     with pytest.raises(SystemExit):
-        main(["run", "trifinger", "--learned", str(tmp_path / "model.pt"), "--model", "qp"])
-    assert "--learned replaces the constant K" in capsys.readouterr().err
+        main(["run", "trifinger", "--learned", str(tmp_path / "model.pt"), "--model", "relaxed_qp"])
+    assert "--learned replaces the paper model's constant K" in capsys.readouterr().err
 
 
 def test_bad_options_are_rejected(capsys):

@@ -13,7 +13,7 @@ JOBS = {
         "closed-loop MPC trials in MuJoCo (e.g. run fingertips --task in-air --object cube)",
     ),
     "learn-k": (
-        "torchcontact.learn.job",
+        "torchcontact.cli.learn_k",
         "learn K(q), D(q) from MuJoCo rollouts; compare with the paper's and the best constant K",
     ),
 }
