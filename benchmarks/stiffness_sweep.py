@@ -3,9 +3,10 @@
     python benchmarks/stiffness_sweep.py                      # K = 1e-3 … 1e2, 10 trials each
     python benchmarks/stiffness_sweep.py --stiffness 0.1 1 10 --trials 3 --workers 2
 
-Runs ``torchcontact run fingertips --task rotation --object bunny --max-steps 500`` once per K
-(trial seeds 0…trials−1, each K in its own folder under ``--out``, so an interrupted sweep
-resumes trial by trial), then prints success, final errors and solve time per K and writes
+Runs the trials of ``torchcontact run fingertips --task rotation --object bunny --max-steps
+500`` once per K through :func:`~torchcontact.mpc.trials.run_trials` (trial seeds
+0…trials−1, each K in its own folder under ``--out``, so an interrupted sweep resumes trial by
+trial), then prints success, final errors and solve time per K and writes
 ``stiffness_sweep.json``, ``stiffness_sweep.csv`` and ``stiffness_sweep.png`` (default under
 results/stiffness_sweep/).
 """
@@ -22,40 +23,26 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from torchcontact.mpc import evaluate  # noqa: E402
-from torchcontact.results import read_json, save_figure, write_csv, write_json  # noqa: E402
+from torchcontact.mpc.report import SUMMARY_KEYS, summarize  # noqa: E402
+from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
+from torchcontact.results import save_figure, write_csv, write_json  # noqa: E402
 
 STIFFNESS = (1e-3, 1e-2, 0.1, 0.3, 1.0, 3.0, 10.0, 100.0)
 """K [per row] from 1e-3 to 1e2, denser around the paper's K = 1."""
 
 
 def run_one(stiffness: float, args: argparse.Namespace) -> dict:
-    """One K: the evaluation's summary (its trial records resume from ``out/K_…/trials``)."""
-    out = args.out / f"K_{stiffness:g}"
-    evaluate.main(
-        [
-            "fingertips",
-            "--task",
-            "rotation",
-            "--object",
-            "bunny",
-            "--trials",
-            str(args.trials),
-            "--max-steps",
-            str(args.max_steps),
-            "--stiffness",
-            f"{stiffness!r}",
-            "--workers",
-            str(args.workers),
-            "--out",
-            str(out),
-            "--json",
-            str(out / "sweep_summary.json"),
-            "--no-progress",
-        ]
+    """One K: the summary of its trials (their records resume from ``out/K_…/trials``)."""
+    configs = trial_configs(
+        "fingertips",
+        [("rotation", "bunny")],
+        range(args.trials),
+        max_steps=args.max_steps,
+        stiffness=stiffness,
     )
-    summary = read_json(out / "sweep_summary.json")
-    return {"stiffness": stiffness, **{key: summary[key] for key in evaluate.SUMMARY_KEYS}}
+    records = run_trials(configs, workers=args.workers, out=args.out / f"K_{stiffness:g}")
+    summary = summarize([record.to_dict() for record in records])
+    return {"stiffness": stiffness, **{key: summary[key] for key in SUMMARY_KEYS}}
 
 
 def plot(rows: list[dict], path: Path) -> Path:

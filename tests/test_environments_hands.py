@@ -75,6 +75,8 @@ def test_an_mpc_takes_its_object_from_the_plant_instead_of_building_it_again(tmp
     mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, plant, settings=EAGER)
     assert builds == []  # a user mesh is not loaded (and decomposed) a second time
     assert tips_before_sliding(plant.object) and mpc.cost.tilt == TRIFINGER_ENV.model.tilt
+    TRIFINGER_ENV.make_plant(str(path))  # a new plant: built anew
+    assert len(builds) == 1
 
 
 def test_the_mpc_fingertips_are_the_plants_sites():

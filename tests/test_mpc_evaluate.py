@@ -1,18 +1,21 @@
-"""``torchcontact run fingertips``: one short trial end to end, its files, and resuming."""
+"""``torchcontact run fingertips``: options, one short trial end to end, its files, resuming."""
 
+import dataclasses
 import json
-from pathlib import Path
 
 import pytest
 
 from torchcontact.cli import main
-from torchcontact.mpc import evaluate
-from torchcontact.mpc.evaluate import SUMMARY_KEYS, parse_args, summarize
-from torchcontact.mpc.suites import SCENES_VERSION
+from torchcontact.environments import environment
+from torchcontact.environments.fingertips import PAPER_STIFFNESS, STIFFNESS
+from torchcontact.mpc.evaluate import configs_of, parse_args
+from torchcontact.mpc.report import SUMMARY_KEYS
+from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
 FAST = ["--max-steps", "15", "--max-iter", "5", "--no-compile", "--no-progress"]
+RECORD = "fingertips_rotation_cube_seed0.json"
 
 
 def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
@@ -22,122 +25,116 @@ def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
     assert set(SUMMARY_KEYS) <= set(summary)
     assert summary["trials"] == 1 and summary["success_rate"] == 0.0  # 15 steps are too few
     assert summary["solve_ms_median"] > 0 and summary["pos_err_mm_mean"] > 0
+    assert summary["model"] == "paper" and summary["preset"] is None  # options overrode it
+    assert summary["settings"]["max_iter"] == 5 and summary["settings"]["compile"] is False
     out = tmp_path / "out"
+    assert json.loads((out / "summary.json").read_text()) == summary
     assert (out / "trials.csv").read_text().startswith("task,object,seed,success")
     assert (out / "results.png").stat().st_size > 0
-    record = json.loads((out / "trials" / "fingertips_rotation_cube_seed0.json").read_text())
+    record = json.loads((out / "trials" / RECORD).read_text())
     assert record["steps"] == 15 and len(record["solve_ms"]) == 15
     assert record["aim_pose"] == record["target_pose"]  # a rotation target rests already
     assert record["fell"] is False and summary["falls"] == 0  # the ground holds it
     printed = capsys.readouterr().out
     assert "rotation" in printed and "success 0.0% of 1" in printed
+    assert "through the paper model" in printed
 
 
-def test_finished_trials_are_not_run_again(tmp_path, monkeypatch):
-    out = str(tmp_path / "out")
-    main([*ARGS, *FAST, "--out", out])
+def test_finished_trials_are_not_run_again(tmp_path):
+    """A record is rewritten (atomically, as a new file) only when its trial is run again."""
+    out = tmp_path / "out"
+    main([*ARGS, *FAST, "--out", str(out)])
+    path = out / "trials" / RECORD
+    before = path.stat()
+    assert main([*ARGS, *FAST, "--out", str(out)]) == 0
+    after = path.stat()
+    assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
+    # other settings: a new trial
+    assert main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", str(out)]) == 0
+    assert path.stat().st_ino != before.st_ino
+    record = json.loads(path.read_text())
+    assert record["max_steps"] == 16 and record["steps"] == 16
 
-    def must_not_run(*args, **kwargs):
-        raise AssertionError("a finished trial was run again")
 
-    monkeypatch.setattr(evaluate, "run_trial", must_not_run)
-    assert main([*ARGS, *FAST, "--out", out]) == 0
-    with pytest.raises(AssertionError, match="run again"):  # other settings: a new trial
-        main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", out])
-
-
-def test_a_short_qp_trial_is_recorded_under_its_own_name(tmp_path, capsys):
+def test_a_short_relaxed_qp_trial_is_recorded_under_its_own_name(tmp_path, capsys):
     out = tmp_path / "out"
     fast = ["--max-steps", "5", *FAST[2:]]
-    assert main([*ARGS, *fast, "--model", "qp", "--out", str(out)]) == 0
-    record = json.loads((out / "trials" / "fingertips_qp_rotation_cube_seed0.json").read_text())
-    assert record["model"] == "qp" and record["relaxation"] == PAPER_RELAXATION
+    assert main([*ARGS, *fast, "--model", "relaxed_qp", "--out", str(out)]) == 0
+    name = "fingertips_relaxed_qp_rotation_cube_seed0.json"
+    record = json.loads((out / "trials" / name).read_text())
+    assert record["model"] == "relaxed_qp" and record["relaxation"] == PAPER_RELAXATION
     assert record["stiffness"] is None and record["steps"] == 5
+    assert record["gaps"] == "frozen"  # the preset's propagated gaps are the paper model's
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["model"] == "qp" and summary["trials"] == 1
-    assert "through the qp model" in capsys.readouterr().out
+    assert summary["model"] == "relaxed_qp" and summary["trials"] == 1
+    assert "through the relaxed_qp model" in capsys.readouterr().out
 
 
-def test_each_model_has_its_default_output_folder():
-    assert parse_args(["fingertips"]).out == Path("results/fingertips")
-    assert parse_args(["fingertips", "--model", "qp"]).out == Path("results/fingertips_qp")
+def test_the_options_become_one_trial_config_per_seed_and_pair():
+    args = parse_args(["fingertips", "--task", "rotation", "--object", "all", "--trials", "2"])
+    configs = configs_of(args)
+    env = environment("fingertips")
+    pairs = env.select("rotation", "all")
+    assert len(pairs) > 1 and len(configs) == 2 * len(pairs)
+    assert [(c.task, c.object, c.seed) for c in configs] == [
+        (task, obj, seed) for task, obj in pairs for seed in (0, 1)
+    ]
+    balanced = env.preset("balanced")
+    assert configs[0] == TrialConfig(
+        env="fingertips",
+        task="rotation",
+        object=pairs[0][1],
+        seed=0,
+        max_steps=env.criterion.max_steps,
+        stiffness=STIFFNESS,
+        **dataclasses.asdict(balanced),
+    )
+    assert configs[0].settings == balanced
 
 
-def test_the_cli_plans_with_each_suites_default_k_and_learn_k_keeps_the_papers():
+def test_each_model_has_its_own_variant_the_default_output_folder():
+    """``main`` writes to results/VARIANT unless given ``--out``."""
+    assert configs_of(parse_args(["fingertips"]))[0].variant == "fingertips"
+    relaxed = configs_of(parse_args(["fingertips", "--model", "relaxed_qp"]))[0]
+    assert relaxed.variant == "fingertips_relaxed_qp"
+    assert parse_args(["fingertips"]).model == "paper"
+
+
+def test_the_cli_plans_with_each_environments_default_k_and_learn_k_keeps_the_papers():
     from torchcontact.learn.scenes import make_scene
 
-    assert parse_args(["fingertips"]).stiffness == 4.64  # learn-k's best constant on the cube
+    assert parse_args(["fingertips"]).stiffness == STIFFNESS == 4.64  # learn-k's best on the cube
     assert parse_args(["trifinger"]).stiffness == parse_args(["allegro"]).stiffness == 0.5
     assert parse_args(["fingertips", "--stiffness", "1"]).stiffness == 1.0
-    assert make_scene("fingertips", "cube").paper_stiffness == 1.0
+    assert make_scene("fingertips", "cube").paper_stiffness == PAPER_STIFFNESS == 1.0
+    assert environment("fingertips").stiffness == PAPER_STIFFNESS
 
 
 def test_the_benchmark_collides_every_object_as_its_hull_as_the_paper_does():
-    from torchcontact.mpc.suites import SUITES
-
     assert parse_args(["trifinger"]).collision == "hull"
     assert parse_args(["trifinger", "--collision", "auto"]).collision == "auto"
-    mug = SUITES["trifinger"].make_env("mug")
+    trifinger = environment("trifinger")
+    mug = trifinger.make_plant("mug")
     assert mug.object.collide_hull and len(mug.object.collision_parts) == 1
-    assert not SUITES["trifinger"].make_env("mug", "auto").object.collide_hull
+    assert not trifinger.make_plant("mug", "auto").object.collide_hull
 
 
 def test_the_qp_plans_with_frozen_gaps_whatever_the_preset():
-    assert parse_args(["fingertips", "--model", "qp"]).settings.gaps == "frozen"
+    assert parse_args(["fingertips", "--model", "relaxed_qp"]).settings.gaps == "frozen"
     assert parse_args(["fingertips", "--gaps", "propagated"]).settings.gaps == "propagated"
     assert parse_args(["fingertips", "--gaps", "frozen"]).settings.gaps == "frozen"
 
 
-def test_records_written_before_the_model_and_solver_options_still_resume(tmp_path, monkeypatch):
-    """Records lacking a key count as its value before the option existed (frozen gaps)."""
-    out = tmp_path / "out"
-    frozen = [*FAST, "--gaps", "frozen"]
-    main([*ARGS, *frozen, "--out", str(out)])
-    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
-    record = json.loads(path.read_text())
-    path.write_text(
-        json.dumps(
-            {
-                k: v
-                for k, v in record.items()
-                if k not in ("model", "relaxation", "memory", "horizon", "gaps")
-            }
-        )
-    )
-    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: pytest.fail("run again"))
-    assert main([*ARGS, *frozen, "--out", str(out)]) == 0
-
-
-def test_records_of_older_scenes_are_run_again(tmp_path, monkeypatch):
+def test_a_record_without_scenes_is_run_again_and_stamped(tmp_path):
     """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ."""
     out = tmp_path / "out"
     main([*ARGS, *FAST, "--out", str(out)])
-    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
+    path = out / "trials" / RECORD
     record = json.loads(path.read_text())
     assert record["scenes"] == SCENES_VERSION
     path.write_text(json.dumps({k: v for k, v in record.items() if k != "scenes"}))
-    reruns = []
-    real = evaluate.run_trial
-    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: reruns.append(1) or real(*a, **k))
     assert main([*ARGS, *FAST, "--out", str(out)]) == 0
-    assert reruns == [1] and json.loads(path.read_text())["scenes"] == SCENES_VERSION
-
-
-def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path, monkeypatch):
-    """Objects collided part by part before ``--collision``: such records resume only there."""
-    out = tmp_path / "out"
-    main([*ARGS, *FAST, "--collision", "parts", "--out", str(out)])
-    path = out / "trials" / "fingertips_rotation_cube_seed0.json"
-    record = json.loads(path.read_text())
-    assert record["collision"] == "parts"
-    path.write_text(json.dumps({k: v for k, v in record.items() if k != "collision"}))
-    reruns = []
-    real = evaluate.run_trial
-    monkeypatch.setattr(evaluate, "run_trial", lambda *a, **k: reruns.append(1) or real(*a, **k))
-    assert main([*ARGS, *FAST, "--collision", "parts", "--out", str(out)]) == 0
-    assert reruns == []
-    assert main([*ARGS, *FAST, "--out", str(out)]) == 0  # the default, "hull": run again
-    assert reruns == [1] and json.loads(path.read_text())["collision"] == "hull"
+    assert json.loads(path.read_text())["scenes"] == SCENES_VERSION
 
 
 @pytest.mark.parametrize(
@@ -148,15 +145,19 @@ def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path
         (["--task", "spin"], "--task"),
         (["--object", "teapot"], "--object"),
         (["--model", "cf"], "--model"),
-        (["--model", "qp", "--stiffness", "1"], "--stiffness"),
+        (["--model", "qp"], "--model"),  # the relaxed QP's old name
+        (["--model", "relaxed_qp", "--stiffness", "1"], "--stiffness"),
         (["--relaxation", "1e-3"], "--relaxation"),
-        (["--model", "qp", "--relaxation", "0"], "--relaxation"),
+        (["--model", "relaxed_qp", "--relaxation", "0"], "--relaxation"),
         (["--preset", "fastest"], "--preset"),
         (["--horizon", "0"], "--horizon"),
         (["--memory", "0"], "--memory"),
+        (["--max-iter", "0"], "--max-iter"),
+        (["--planner", "adam"], "--planner"),
         (["--collision", "convex"], "--collision"),
         (["--gaps", "updated"], "--gaps"),
-        (["--model", "qp", "--gaps", "propagated"], "--gaps"),
+        (["--model", "relaxed_qp", "--gaps", "propagated"], "--gaps"),
+        (["--tips", "a,b"], "--tips"),
     ],
 )
 def test_bad_options_are_refused(tmp_path, capsys, bad, message):
@@ -164,68 +165,3 @@ def test_bad_options_are_refused(tmp_path, capsys, bad, message):
         main(["run", "fingertips", *bad, "--out", str(tmp_path)])
     assert exit_info.value.code not in (0, None)
     assert message in capsys.readouterr().err + str(exit_info.value.code)
-
-
-def test_summary_needs_records():
-    with pytest.raises(ValueError, match="records"):
-        summarize([])
-
-
-TIMINGS = {"detect_ms", "solve_ms", "sim_ms"}
-
-
-def _records(out):
-    return {
-        path.name: {k: v for k, v in json.loads(path.read_text()).items() if k not in TIMINGS}
-        for path in sorted((out / "trials").glob("*.json"))
-    }
-
-
-def test_parallel_workers_give_the_serial_records(tmp_path):
-    two = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "2"]
-    main([*two, *FAST, "--out", str(tmp_path / "serial")])
-    main([*two, *FAST, "--workers", "2", "--out", str(tmp_path / "parallel")])
-    serial, parallel = _records(tmp_path / "serial"), _records(tmp_path / "parallel")
-    assert len(serial) == 2 and serial == parallel
-
-
-def test_an_interrupted_sweep_resumes_without_redoing_finished_trials(tmp_path, monkeypatch):
-    out = tmp_path / "out"
-    two = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "2"]
-    original, calls = evaluate.run_trial, []
-
-    def interrupted_after_one(config, *args, **kwargs):
-        if calls:
-            raise KeyboardInterrupt
-        calls.append(config.seed)
-        return original(config, *args, **kwargs)
-
-    monkeypatch.setattr(evaluate, "run_trial", interrupted_after_one)
-    with pytest.raises(KeyboardInterrupt):
-        main([*two, *FAST, "--out", str(out)])
-    assert [p.name for p in (out / "trials").glob("*.json")] == [
-        "fingertips_rotation_cube_seed0.json"
-    ]
-    ran = []
-    monkeypatch.setattr(
-        evaluate, "run_trial", lambda c, *a, **k: ran.append(c.seed) or original(c, *a, **k)
-    )
-    assert main([*two, *FAST, "--out", str(out)]) == 0
-    assert ran == [1]
-
-
-def test_summary_counts_falls_and_reads_them_from_older_records():
-    def record(fell=None, z_end=0.03, poses=True):
-        r = {"success": False, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
-             "steps": 1, "solve_ms": [1.0], "detect_ms": [1.0], "sim_ms": [1.0],
-             "iterations": [1]}  # fmt: skip
-        if poses:
-            r["initial_pose"] = [0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]
-            r["final_pose"] = [0.0, 0.0, z_end, 1.0, 0.0, 0.0, 0.0]
-        if fell is not None:
-            r["fell"] = fell
-        return r
-
-    assert summarize([record(True), record(False), record(z_end=-0.17)])["falls"] == 2
-    assert summarize([record(False), record(z_end=0.02)])["falls"] == 0
-    assert summarize([record(True), record(poses=False)])["falls"] is None

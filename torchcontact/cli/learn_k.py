@@ -135,6 +135,19 @@ def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
     )
 
 
+def evaluate_models(models: dict, steps, test, detector, weights, args) -> dict:
+    """One-step and ``args.horizon``-step rollout errors of each model on the test split."""
+    window = (args.horizon, args.stride)
+    return {
+        key: {
+            "one_step": one_step_error(model, steps, weights),
+            "rollout": rollout_error(model, test, detector, *window),
+            "rollout_robot_recorded": rollout_error(model, test, detector, *window, "recorded"),
+        }
+        for key, model in models.items()
+    }
+
+
 def run(args: argparse.Namespace) -> dict:
     """Collect, split, sweep, fit and evaluate; returns the record written to results.json."""
     progress = not args.no_progress
@@ -179,16 +192,7 @@ def run(args: argparse.Namespace) -> dict:
         "best_constant_k": constant_model(best_k, meta),
         "learned": result.model,
     }
-    test = splits["test"]
-    window = (args.horizon, args.stride)
-    evaluation = {
-        key: {
-            "one_step": one_step_error(model, steps["test"], weights),
-            "rollout": rollout_error(model, test, detector, *window),
-            "rollout_robot_recorded": rollout_error(model, test, detector, *window, "recorded"),
-        }
-        for key, model in models.items()
-    }
+    evaluation = evaluate_models(models, steps["test"], splits["test"], detector, weights, args)
     args.results.mkdir(parents=True, exist_ok=True)
     save_checkpoint(args.results / "model.pt", result.model, config, meta)
     write_csv(args.results / "history.csv", result.history)
@@ -224,7 +228,7 @@ def run(args: argparse.Namespace) -> dict:
         },
         "sweep": sweep,
         "evaluation": evaluation,
-        "still_object": still_error(test, args.horizon, args.stride),
+        "still_object": still_error(splits["test"], args.horizon, args.stride),
     }
 
 

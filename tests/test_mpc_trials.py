@@ -1,0 +1,238 @@
+"""The trial API: a configuration in, a record out; parallel runs, resuming, legacy records; and
+the summary of a sweep's records."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from torchcontact.environments import environment
+from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
+from torchcontact.model import ComplementarityFree, RelaxedQP
+from torchcontact.mpc.report import summarize
+from torchcontact.mpc.trials import (
+    DEFAULT_MODEL,
+    LEGACY_DEFAULTS,
+    MPC_MODELS,
+    SCENES_VERSION,
+    TrialConfig,
+    TrialRecord,
+    build_trial,
+    finished_record,
+    run_trial,
+    run_trials,
+)
+from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
+
+CONFIG = TrialConfig(
+    env="fingertips",
+    task="rotation",
+    object="cube",
+    seed=0,
+    max_steps=5,
+    max_iter=5,
+    compile=False,
+    dtype="float64",
+    stiffness=STIFFNESS,
+)
+TWO = [CONFIG, dataclasses.replace(CONFIG, seed=1)]
+TIMINGS = {"detect_ms", "solve_ms", "sim_ms"}
+
+
+def _untimed(records: list[TrialRecord]) -> list[dict]:
+    return [{k: v for k, v in r.to_dict().items() if k not in TIMINGS} for r in records]
+
+
+def _run(configs, out, **options) -> tuple[list[TrialRecord], list[tuple[int, bool]]]:
+    """``run_trials`` into ``out``, with the (seed, reused) of each record as it came."""
+    seen = []
+    records = run_trials(
+        configs,
+        out=out,
+        progress=False,
+        on_record=lambda record, reused: seen.append((record.config.seed, reused)),
+        **options,
+    )
+    return records, seen
+
+
+@pytest.fixture(scope="module")
+def serial() -> list[TrialRecord]:
+    """Trials 0 and 1 run one after the other in this process, writing nothing."""
+    return run_trials(TWO, progress=False)
+
+
+def test_a_config_builds_its_environment_plant_and_mpc():
+    env, plant, mpc = build_trial(CONFIG)
+    assert env is FINGERTIPS and plant.object.name == "cube"
+    assert isinstance(mpc.model, ComplementarityFree)
+    assert (mpc.horizon, mpc.planner.max_iter, mpc.planner.memory) == (4, 5, 8)
+    assert not mpc.compiled and mpc.gaps == "frozen"
+    assert CONFIG.settings == dataclasses.replace(
+        env.preset(), max_iter=5, dtype="float64", compile=False, gaps="frozen", memory=8
+    )
+    assert CONFIG.variant == "fingertips" and CONFIG.name == "fingertips_rotation_cube_seed0"
+
+
+def test_the_relaxed_qp_takes_the_papers_kappa_at_the_objects_step():
+    """κ is converted for the plant's model step: the foam brick's h is 0.05 s, not 0.1 s."""
+    assert MPC_MODELS == ("paper", "relaxed_qp") and DEFAULT_MODEL == "paper"
+    config = dataclasses.replace(
+        CONFIG, object="foam_brick", model="relaxed_qp", stiffness=None, relaxation=2e-4
+    )
+    env, plant, mpc = build_trial(config)
+    assert env.h(plant) == 0.05 and isinstance(mpc.model, RelaxedQP)
+    assert mpc.model.relaxation == pytest.approx(paper_relaxation(0.05, 2e-4))
+    assert config.name == "fingertips_relaxed_qp_rotation_foam_brick_seed0"
+    assert dataclasses.replace(config, relaxation=PAPER_RELAXATION).variant == (
+        "fingertips_relaxed_qp"
+    )
+
+
+def test_a_trial_runs_to_its_step_limit_and_records_it(serial):
+    record = serial[0]
+    assert record.config == CONFIG
+    assert record.steps == 5 and not record.success  # 5 steps are too few
+    assert all(len(getattr(record, key)) == 5 for key in (*TIMINGS, "iterations"))
+    assert all(0 < n <= CONFIG.max_iter for n in record.iterations)
+    assert record.pos_err_mm > 0 and record.angle_err_deg > 0
+    env = environment("fingertips")
+    plant = env.make_plant("cube")
+    initial, target = env.sample(plant, "rotation", 0)
+    # (to rounding: the plant normalises the quaternions it is given)
+    np.testing.assert_allclose(record.initial_pose, initial, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(record.target_pose, target, rtol=0, atol=1e-12)
+    assert record.aim_pose == record.target_pose  # a rotation target rests already
+    assert record.fell is False  # the ground holds it
+    assert record.contact_slots == plant.detector.slots
+    assert 0 < record.contacts_found_mean <= record.contacts_found_max
+
+
+def test_a_trial_depends_only_on_its_config(serial):
+    """Run again on the MPC of another trial's setup, trial 0 gives the same record."""
+    env, plant, mpc = build_trial(CONFIG)
+    run_trial(TWO[1], env, plant, mpc)
+    assert _untimed([run_trial(CONFIG, env, plant, mpc)]) == _untimed(serial[:1])
+
+
+def test_a_record_round_trips_through_its_dict_and_json(serial):
+    record = serial[0]
+    assert TrialRecord.from_dict(record.to_dict()) == record
+    assert TrialRecord.from_dict(json.loads(json.dumps(record.to_dict()))) == record
+    # a user robot's fingertip sites come back from JSON's list as the config's tuple
+    custom = dataclasses.replace(
+        record,
+        config=dataclasses.replace(CONFIG, env="custom", robot="/hand.xml", tips=("a", "b")),
+    )
+    assert TrialRecord.from_dict(json.loads(json.dumps(custom.to_dict()))) == custom
+
+
+def test_parallel_workers_give_the_serial_records(serial):
+    parallel = run_trials(TWO, workers=2, progress=False)
+    assert [r.config for r in parallel] == TWO  # in the configs' order
+    assert len(serial) == 2 and _untimed(parallel) == _untimed(serial)
+    assert _untimed(serial[:1]) != _untimed(serial[1:])  # two different trials
+
+
+def test_a_second_run_reuses_the_records_and_runs_nothing(tmp_path, serial):
+    first, seen = _run(TWO, tmp_path)
+    assert seen == [(0, False), (1, False)]
+    assert _untimed(first) == _untimed(serial)
+    paths = sorted((tmp_path / "trials").glob("*.json"))
+    assert [p.name for p in paths] == [f"{c.name}.json" for c in TWO]
+    again, seen = _run(TWO, tmp_path)
+    assert seen == [(0, True), (1, True)]
+    assert again == first  # timings too: read back, not run
+    assert finished_record(paths[0], CONFIG) == first[0]
+
+
+def test_an_interrupted_sweep_resumes_without_redoing_finished_trials(tmp_path):
+    _run(TWO[:1], tmp_path)
+    records, seen = _run(TWO, tmp_path)
+    assert seen == [(0, True), (1, False)]
+    assert [r.config for r in records] == TWO
+
+
+def test_other_settings_make_a_new_trial(tmp_path):
+    _run([CONFIG], tmp_path)
+    longer = dataclasses.replace(CONFIG, max_steps=6)
+    assert finished_record(tmp_path / "trials" / f"{CONFIG.name}.json", longer) is None
+    (record,), seen = _run([longer], tmp_path)
+    assert seen == [(0, False)] and record.steps == 6
+    assert json.loads((tmp_path / "trials" / f"{CONFIG.name}.json").read_text())["max_steps"] == 6
+
+
+def _strip(tmp_path, config: TrialConfig, keys) -> dict:
+    """Delete ``keys`` from the saved record of ``config``, as records written before them lack."""
+    path = tmp_path / "trials" / f"{config.name}.json"
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({k: v for k, v in record.items() if k not in keys}))
+    return record
+
+
+def test_records_written_before_the_solver_options_still_resume(tmp_path):
+    """Records lacking a key count as its value before the option existed (frozen gaps, the
+    paper's memory and horizon, no learned model, L-BFGS, a built-in robot)."""
+    _run([CONFIG], tmp_path)
+    keys = ("relaxation", "memory", "horizon", "gaps", "learned", "planner", "robot", "tips")
+    assert set(keys) - {"relaxation"} <= set(LEGACY_DEFAULTS)
+    _strip(tmp_path, CONFIG, keys)
+    _, seen = _run([CONFIG], tmp_path)
+    assert seen == [(0, True)]
+    # a later setting than the legacy one: run again
+    _, seen = _run([dataclasses.replace(CONFIG, memory=4)], tmp_path)
+    assert seen == [(0, False)]
+
+
+def test_records_of_older_scenes_are_run_again(tmp_path):
+    """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ."""
+    _run([CONFIG], tmp_path)
+    assert _strip(tmp_path, CONFIG, ("scenes",))["scenes"] == SCENES_VERSION
+    _, seen = _run([CONFIG], tmp_path)
+    assert seen == [(0, False)]
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    assert json.loads(path.read_text())["scenes"] == SCENES_VERSION
+
+
+def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path):
+    """Objects collided part by part before ``collision`` existed: such records resume only
+    there."""
+    parts = dataclasses.replace(CONFIG, collision="parts")
+    _run([parts], tmp_path)
+    assert _strip(tmp_path, parts, ("collision",))["collision"] == "parts"
+    _, seen = _run([parts], tmp_path)
+    assert seen == [(0, True)]
+    _, seen = _run([CONFIG], tmp_path)  # the default, "hull": run again
+    assert seen == [(0, False)]
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    assert json.loads(path.read_text())["collision"] == "hull"
+
+
+def test_workers_must_be_a_positive_integer():
+    with pytest.raises(ValueError, match="workers"):
+        run_trials([CONFIG], workers=0)
+
+
+def test_summary_needs_records():
+    with pytest.raises(ValueError, match="records"):
+        summarize([])
+
+
+def test_summary_counts_falls_and_reads_them_from_older_records():
+    def record(fell=None, z_end=0.03, poses=True):
+        r = {"success": False, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
+             "steps": 1, "solve_ms": [1.0], "detect_ms": [1.0], "sim_ms": [1.0],
+             "iterations": [1]}  # fmt: skip
+        if poses:
+            r["initial_pose"] = [0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]
+            r["final_pose"] = [0.0, 0.0, z_end, 1.0, 0.0, 0.0, 0.0]
+        if fell is not None:
+            r["fell"] = fell
+        return r
+
+    assert summarize([record(True), record(False), record(z_end=-0.17)])["falls"] == 2
+    assert summarize([record(False), record(z_end=0.02)])["falls"] == 0
+    assert summarize([record(True), record(poses=False)])["falls"] is None
