@@ -5,15 +5,16 @@
     python benchmarks/ipopt_speed.py --env allegro --seeds 1 --steps 100   # 17 objects
 
 The issue's speed target is relative to the paper's implementation on the same machine. This
-runs both in one process on one thread. Each trial is first driven closed-loop by our MPC (the
-``balanced`` preset, as ``torchcontact run ENV``) for ``--steps`` steps, timing its solves and
-keeping the states and contacts it visits. Then
-:class:`~studies.ipopt_baseline.IpoptMPC` solves the paper's MPC problem at the same
-states in order, once per way of stating it, each in its own pass: our lean NLP and the
-reference code's own formulation (``FORMULATIONS``). Each is frozen gaps, float64,
-warm-started from its own previous solution (the fingertips' IPOPT at most 100 iterations
-with the tips' heights bounded as the reference bounds them, the hands' at most 50, the
-reference's cap, with their fingertips from CasADi forward kinematics of the same MJCF).
+runs both in one process on one thread. Each trial is first driven closed-loop by our MPC
+(``ContactImplicitMPC.from_env`` with the environment's ``balanced`` preset, as ``torchcontact
+run ENV``) for ``--steps`` steps, timing its solves and keeping the states and contacts it
+visits. Then :class:`~studies.ipopt_baseline.IpoptMPC` solves the paper's MPC problem (the
+environment's MPC with the paper's settings: frozen gaps, float64, T = 4) at the same states
+in order, once per way of stating it, each in its own pass: our lean NLP and the reference
+code's own formulation (``FORMULATIONS``). Each is warm-started from its own previous solution
+(point fingertips' IPOPT at most 100 iterations with the tips' heights bounded as the
+reference bounds them, the hands' at most 50, the reference's cap, with their fingertips from
+CasADi forward kinematics of the same MJCF).
 Separate passes keep one solver from evicting another's code and data from the caches
 between its solves; our solves still alternate with MuJoCo's detection and simulation, as
 in a sweep, while IPOPT's replays do not. All times include the frozen rows' extraction;
@@ -26,6 +27,7 @@ written at once, and a rerun with the same ``--out`` skips it.
 """
 
 import argparse
+import dataclasses
 import math
 import os
 import statistics
@@ -43,11 +45,11 @@ from studies.ipopt_baseline import (  # noqa: E402
     FORMULATIONS,
     REFERENCE_MAX_ITER,
     IpoptMPC,
+    is_chain,
 )
-from torchcontact.environments import tasks  # noqa: E402
-from torchcontact.environments.presets import preset_options  # noqa: E402
-from torchcontact.mpc.fingertips import fingertips_mpc  # noqa: E402
-from torchcontact.mpc.suites import SUITES  # noqa: E402
+from torchcontact.environments import ENVIRONMENTS, environment, tasks  # noqa: E402
+from torchcontact.environments.presets import PAPER  # noqa: E402
+from torchcontact.mpc.controller import ContactImplicitMPC  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
 
 torch.set_num_threads(1)
@@ -62,36 +64,36 @@ def run_trial(
     """Drive one trial of ``env_name`` with our MPC for ``steps`` steps, timing it, then time
     IPOPT on each NLP formulation (:data:`~studies.ipopt_baseline.FORMULATIONS`) in
     its own pass over the states it visited."""
-    suite = SUITES[env_name]
-    env = suite.make_env(obj)
-    options = {**preset_options(env_name), "compile": compile}
-    if env_name == "fingertips":
-        ours = fingertips_mpc(obj, **options)
-        problem = fingertips_mpc(obj, compile=False)
-        high = tasks.OBJECT_SETTINGS[obj].tip_height_max
+    env = environment(env_name)
+    plant = env.make_plant(obj)
+    preset = dataclasses.replace(env.preset(), compile=compile)
+    ours = ContactImplicitMPC.from_env(env, plant, settings=preset)
+    problem = ContactImplicitMPC.from_env(
+        env, plant, settings=dataclasses.replace(PAPER, compile=False)
+    )
+    settings = {"max_iter": REFERENCE_MAX_ITER}
+    if not is_chain(problem):  # point fingertips: the reference's cap and tip bounds for them
+        known = tasks.OBJECT_SETTINGS.get(obj)
+        high = None if known is None else known.tip_height_max
         settings = {
             "max_iter": FINGERTIPS_MAX_ITER,
             "tip_height": (0.0, math.inf if high is None else high),
         }
-    else:
-        ours = suite.make_mpc(obj, None, plant=env, **options)
-        problem = suite.make_mpc(obj, None, plant=env, compile=False)
-        settings = {"max_iter": REFERENCE_MAX_ITER}
     baselines = {
-        name: IpoptMPC(problem, env.detector.slots * 4, formulation=name, **settings)
+        name: IpoptMPC(problem, plant.detector.slots * 4, formulation=name, **settings)
         for name in FORMULATIONS
     }
-    initial, target = suite.sample(env, task, obj, seed)
-    env.reset(initial, target)
-    aim = suite.aim(env, target)
+    initial, target = env.sample(plant, task, seed)
+    plant.reset(initial, target)
+    aim = env.aim(plant, target)
     aim_p, aim_quat = torch.as_tensor(aim[:3]), torch.as_tensor(aim[3:])
     # Pass 1: our MPC drives the trial; its states and contacts are kept for the replays.
     ours_ms, visited = [], []
     for step in range(steps):
-        contacts = env.contacts(torch.float64)
-        q = torch.as_tensor(env.state())
+        contacts = plant.contacts(torch.float64)
+        q = torch.as_tensor(plant.state())
         plan = ours.plan(q, contacts, aim_p, aim_quat)
-        env.step(plan.control.numpy())
+        plant.step(plan.control.numpy())
         visited.append((q, contacts))
         if step >= WARMUP_STEPS:
             ours_ms.append(plan.solve_ms)
@@ -142,7 +144,7 @@ def summarize(records: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", choices=tuple(SUITES), default="fingertips")
+    parser.add_argument("--env", choices=tuple(ENVIRONMENTS), default="fingertips")
     parser.add_argument(
         "--pairs", default="all", help="'all' or comma-separated task:object, e.g. flip:cube"
     )
@@ -154,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.seeds < 1 or args.steps <= WARMUP_STEPS:
         parser.error(f"--seeds must be ≥ 1 and --steps > {WARMUP_STEPS}")
-    known = SUITES[args.env].pairs
+    known = environment(args.env).pairs
     pairs = list(known)
     if args.pairs != "all":
         pairs = [tuple(pair.split(":")) for pair in args.pairs.split(",")]

@@ -27,6 +27,7 @@ from torchcontact.learn.fit import (
     system_terms,
 )
 from torchcontact.model import ComplementarityFree
+from torchcontact.rotations import quaternion_angle
 from torchcontact.sim.detect import ContactDetector
 from torchcontact.validation import validate_args
 
@@ -37,7 +38,9 @@ def pose_metrics(pose: torch.Tensor, target: torch.Tensor, weights: tuple[float,
     position, quaternion = pose_errors(pose.double(), target.double())
     errors = {
         "pos_mm": 1e3 * position,
-        "angle_deg": torch.rad2deg(torch.arccos((1.0 - 2.0 * quaternion).clamp(-1.0, 1.0))),
+        "angle_deg": torch.rad2deg(
+            quaternion_angle(pose[..., 3:].double(), target[..., 3:].double())
+        ),
         "combined": weights[0] * position.square() + weights[1] * quaternion,
     }
     means = {key: float(value.mean()) for key, value in errors.items()}

@@ -126,7 +126,9 @@ class ContactImplicitMPC:
         fingertips, cost, control box and h.
 
         ``model``: a contact model, a name of :data:`~torchcontact.model.MODELS` built with
-        its defaults, or None for the paper's model at ``env.default_stiffness``;
+        its defaults (the relaxed QP's κ is then the paper's at h = 0.1 s: for another h,
+        pass ``RelaxedQP(paper_relaxation(h))``), or None for the paper's model at
+        ``env.default_stiffness``;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
         built with the settings' iterations, memory and compilation; ``settings``: solver
         settings or a preset name (default the environment's default preset).

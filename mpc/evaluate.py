@@ -36,7 +36,7 @@ from torchcontact.mpc.trials import (
 )
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
-from torchcontact.sim.objects import COLLISIONS
+from torchcontact.shapes import COLLISIONS
 
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""

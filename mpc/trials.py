@@ -30,6 +30,7 @@ from torchcontact.model import ContactModel, RelaxedQP, contact_model
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
+from torchcontact.sim.plant import as_pose
 
 SCENES_VERSION = 8
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
@@ -209,7 +210,8 @@ def trial_model(config: TrialConfig, h: float) -> ContactModel:
 
         return load_model(config.learned).requires_grad_(False)
     if config.model == "relaxed_qp":
-        return RelaxedQP(paper_relaxation(h, config.relaxation), facets=4)
+        kappa = PAPER_RELAXATION if config.relaxation is None else config.relaxation
+        return RelaxedQP(paper_relaxation(h, kappa), facets=4)
     if config.model == "paper":
         return contact_model("paper", stiffness=config.stiffness)
     raise ValueError(f"model must be one of {MPC_MODELS}, got {config.model!r}")
@@ -237,6 +239,8 @@ def run_trial(
     """Run one trial to success or ``config.max_steps``; ``frames`` collects rendered RGB
     frames every ``frame_every`` steps when given."""
     initial, target = env.sample(plant, config.task, config.seed)
+    # the poses as the plant takes them (quaternions normalised), recorded and judged so
+    initial, target = as_pose("initial", initial), as_pose("target", target)
     plant.reset(initial, target)
     mpc.reset()
     criterion = dataclasses.replace(env.criterion, max_steps=config.max_steps)

@@ -6,3 +6,5 @@ Each module runs one experiment of the paper or one sweep of ours and reports it
 sweeps), ``ipopt_baseline`` with ``casadi_kinematics`` (the paper's CasADi/IPOPT MPC, the
 speed baseline). The scripts in ``benchmarks/`` run them from the repository root.
 """
+
+import torchcontact.sim  # noqa: E402, F401  (chooses the GL backend before a study imports mujoco)

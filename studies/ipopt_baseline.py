@@ -6,7 +6,8 @@ solution). Our speed targets are relative to that implementation on the same mac
 ``benchmarks/ipopt_speed.py`` times :class:`IpoptMPC` beside our :class:`ContactImplicitMPC`
 on the same states in one run. The problem is our MPC's, read from the controller it is built
 on: the complementarity-free step with J̃, φ̃, K, D frozen over the horizon (as the paper's
-Algorithm 1), the same cost terms and weights, the same control box. As in the paper's code:
+Algorithm 1, :meth:`ContactImplicitMPC.freeze`), the same cost terms and weights, the same
+control box. As in the paper's code:
 
 - decision variables ``w = (u₀, q₁, u₁, q₂, …, u_{T−1}, q_T)``, constraints ``q_{t+1} =
   f(q_t, u_t)``, optionally the tips' heights bounded (the reference's first guess is all
@@ -18,9 +19,28 @@ Algorithm 1), the same cost terms and weights, the same control box. As in the p
 - IPOPT with its defaults (MUMPS), a cap on its iterations, given the previous primal and
   dual solution as its start.
 
-The fingertips' tips are coordinates of q; the hands' come from their MJCF through
-:func:`~studies.casadi_kinematics.casadi_fingertips`, as the paper's code writes its
-hands' forward kinematics in CasADi.
+The robot is the environment's (``mpc.fingertips.robot``, a
+:class:`~torchcontact.sim.robot.Robot`): point fingertips (no kinematics) are coordinates of
+q; a kinematic chain's tips come from its MJCF through
+:func:`~studies.casadi_kinematics.casadi_fingertips`, as the paper's code writes its hands'
+forward kinematics in CasADi.
+
+Two ways in:
+
+- :class:`IpoptMPC` wraps a controller and solves its problem at the states it is given,
+  warm-started from its own previous solution: the benchmark's replays of the states our
+  closed loop visited.
+- :class:`IpoptPlanner` is a :class:`~torchcontact.mpc.planners.Planner`, so that an MPC plans
+  every step through IPOPT: ``ContactImplicitMPC.from_env(env, plant,
+  planner=IpoptPlanner())`` or, after :func:`register_ipopt`, ``planner="ipopt"``. A planner
+  exists before the MPC it serves (``from_env`` takes it ready-made, and builds a named one
+  from ``max_iter``, ``memory`` and ``compile`` alone), so the planner holds IPOPT's options
+  only and reads the problem at plan time: the system, layout, fingertips, cost, h and horizon
+  from the MPC whose objective it is handed (that objective is the MPC's own bound method;
+  ``IpoptPlanner(mpc=...)`` names the MPC instead), the frozen step, state and target from
+  the MPC's ``args``, and the control box from ``box``. It builds one :class:`IpoptMPC` per
+  (MPC, number of frozen rows), since the MPC pads the contact slots to a bucket size that can
+  change from step to step.
 """
 
 from __future__ import annotations
@@ -33,10 +53,12 @@ import torch
 
 from studies.casadi_kinematics import casadi_fingertips
 from torchcontact.contacts import Contacts
-from torchcontact.model import RelaxedQP
+from torchcontact.environments.base import RobotTips
+from torchcontact.frozen import FrozenComplementarityFree, FrozenRelaxedQP
+from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.fingertips import LAYOUT, fingertip_positions
-from torchcontact.mpc.hands import JointFingertips
+from torchcontact.mpc.planners import PLANNERS, Objective, PlannerResult, register_planner
+from torchcontact.sim.robot import Robot
 from torchcontact.validation import check_shape
 
 REFERENCE_MAX_ITER = 50
@@ -52,6 +74,8 @@ barrier terms."""
 
 REFERENCE_BOUND = 1e7
 """The reference's box on the states it does not otherwise bound (finite, so IPOPT keeps it)."""
+
+QP_REFUSAL = "the IPOPT baseline states the complementarity-free model, not qp"
 
 
 @dataclass(frozen=True)
@@ -98,29 +122,56 @@ def _rotation(quat):
     )
 
 
-def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: str) -> bool:
-    """Refuse what the baseline cannot state, naming the argument; True for a hand's MPC."""
+def _check_options(max_iter, tip_height, formulation: str) -> None:
+    """Refuse bad solver options, naming the argument."""
     if formulation not in FORMULATIONS:
         raise ValueError(f"formulation must be one of {FORMULATIONS}, got {formulation!r}")
-    if isinstance(mpc.model, RelaxedQP):
-        raise ValueError("the IPOPT baseline states the complementarity-free model, not qp")
-    if mpc.gaps != "frozen":
-        raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
-    hand = isinstance(mpc.fingertips, JointFingertips)
-    robot_joints = mpc.layout.joints[1:]
-    if not (
-        (mpc.layout.joints == LAYOUT.joints and mpc.fingertips is fingertip_positions)
-        or (hand and mpc.layout.joints[0] == "free" and set(robot_joints) == {"hinge"})
-    ):
-        raise ValueError("the IPOPT baseline supports the fingertips' and hands' MPCs only")
-    if hand and tip_height is not None:
-        raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")
-    if not isinstance(n_rows, int) or n_rows < 1:
-        raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
     if not isinstance(max_iter, int) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     if tip_height is not None and not tip_height[0] < tip_height[1]:
         raise ValueError(f"tip_height must be (low, high) with low < high, got {tip_height}")
+
+
+def is_chain(mpc: ContactImplicitMPC) -> bool:
+    """Whether the MPC's robot is a kinematic chain (a hand, tips by forward kinematics of its
+    MJCF) rather than point fingertips (tips are coordinates of q); ``ValueError`` for any
+    other robot or layout.
+
+    The robot is ``mpc.fingertips.robot``, the :class:`~torchcontact.sim.robot.Robot` of an
+    environment's :meth:`~torchcontact.environments.base.Environment.fingertips`. Point
+    fingertips need the layout ``free`` then three slides per tip; a chain, ``free`` then its
+    hinge and slide joints.
+    """
+    tips = mpc.fingertips
+    robot = tips.robot if isinstance(tips, RobotTips) else None
+    joints = mpc.layout.joints
+    if isinstance(robot, Robot) and joints[0] == "free" and mpc.layout.nq == 7 + robot.n_joints:
+        if robot.kinematics is None and joints[1:] == ("slide",) * (3 * robot.n_tips):
+            return False
+        if robot.kinematics is not None and set(joints[1:]) <= {"hinge", "slide"}:
+            return True
+    raise ValueError(
+        "the IPOPT baseline supports an environment's point fingertips and kinematic hands only"
+    )
+
+
+def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: str) -> bool:
+    """Refuse what the baseline cannot state, naming the argument; True for a hand's MPC."""
+    _check_options(max_iter, tip_height, formulation)
+    if isinstance(mpc.model, RelaxedQP):
+        raise ValueError(QP_REFUSAL)
+    if not isinstance(mpc.model, ComplementarityFree) or mpc.model.gamma is None:
+        raise ValueError(
+            "the IPOPT baseline states the complementarity-free model with a softplus γ, "
+            f"got {mpc.model!r}"
+        )
+    if mpc.gaps != "frozen":
+        raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
+    hand = is_chain(mpc)
+    if hand and tip_height is not None:
+        raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")
+    if not isinstance(n_rows, int) or n_rows < 1:
+        raise ValueError(f"n_rows must be a positive integer, got {n_rows!r}")
     return hand
 
 
@@ -161,11 +212,12 @@ def _step_function(mpc: ContactImplicitMPC, formulation: str, jac, phi, K, D):
 
 
 def _tips_function(mpc: ContactImplicitMPC, hand: bool):
-    """``tips(q) ↦ [p_i (3,)]``: the fingertips' positions (CasADi): coordinates of q for the
+    """``tips(q) ↦ [p_i (3,)]``: the fingertips' positions (CasADi): coordinates of q for point
     fingertips, CasADi forward kinematics of the MJCF for a hand."""
+    robot = mpc.fingertips.robot
     if not hand:
-        return lambda q: [q[7 + 3 * i : 10 + 3 * i] for i in range(3)]
-    kinematics = mpc.fingertips.kinematics
+        return lambda q: [q[7 + 3 * i : 10 + 3 * i] for i in range(robot.n_tips)]
+    kinematics = robot.kinematics
     forward = casadi_fingertips(kinematics.mjcf, kinematics.tips)
 
     def tips(q):
@@ -203,12 +255,10 @@ def _cost_functions(cost, tips, target_q):
     return path_cost, state_cost
 
 
-def _state_bounds(mpc: ContactImplicitMPC, formulation: str, hand: bool, tip_height):
+def _state_bounds(lower, upper, nq: int, formulation: str, hand: bool, tip_height):
     """``(lower, upper)`` bounds ``(T·(n_u + nq),)`` on the decision variables, in their order
-    ``(u₀, q₁, …)``: the control box, and the states' boxes (:class:`IpoptMPC`)."""
-    T, n_u, nq = mpc.horizon, mpc.system.n_robot, mpc.layout.nq
-    lower = mpc.lower.reshape(T, n_u).double().numpy()
-    upper = mpc.upper.reshape(T, n_u).double().numpy()
+    ``(u₀, q₁, …)``: the control box ``lower, upper (T, n_u)``, and the states' boxes
+    (:class:`IpoptMPC`)."""
     unbounded = np.inf if formulation == "lean" else REFERENCE_BOUND
     state_low, state_high = np.full(nq, -unbounded), np.full(nq, unbounded)
     if formulation == "reference" and hand:
@@ -225,12 +275,54 @@ def _state_bounds(mpc: ContactImplicitMPC, formulation: str, hand: bool, tip_hei
     return low, high
 
 
+def _nlp(mpc: ContactImplicitMPC, n_rows: int, max_iter: int, formulation: str, hand: bool):
+    """IPOPT on the MPC's multiple-shooting NLP, ``solver``, and its model step as a
+    ``casadi.Function`` ``step (q, u, rows) ↦ q⁺`` (:attr:`IpoptMPC.step_function`)."""
+    import casadi as cs
+
+    nq, nv, n_u, T = mpc.layout.nq, mpc.layout.nv, mpc.system.n_robot, mpc.horizon
+    cost = mpc.cost
+    q0 = cs.SX.sym("q0", nq)
+    target_p, target_q = cs.SX.sym("target_p", 3), cs.SX.sym("target_q", 4)
+    phi, K, D = (cs.SX.sym(name, n_rows) for name in ("phi", "K", "D"))
+    jac = cs.SX.sym("jac", n_rows, nv)
+    step = _step_function(mpc, formulation, jac, phi, K, D)
+    path_cost, state_cost = _cost_functions(cost, _tips_function(mpc, hand), target_q)
+
+    w, g, objective, q = [], [], 0, q0
+    for _ in range(T):
+        u = cs.SX.sym(f"u{len(w)}", n_u)
+        objective += path_cost(q, u)
+        predicted = step(q, u)
+        q = cs.SX.sym(f"q{len(w)}", nq)
+        w += [u, q]
+        g.append(predicted - q)
+        objective += state_cost(q)
+    final = cost.position * cs.sumsqr(q[0:3] - target_p)
+    final += cost.orientation * (1 - cs.dot(q[3:7], target_q) ** 2)
+    objective += cost.final * final
+
+    rows = cs.vertcat(phi, cs.vec(jac), K, D)
+    params = cs.vertcat(q0, target_p, target_q, rows)
+    nlp = {"x": cs.vertcat(*w), "f": objective, "g": cs.vertcat(*g), "p": params}
+    options = {
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "print_time": 0,
+        "ipopt.max_iter": max_iter,
+    }
+    solver = cs.nlpsol("mpc", "ipopt", nlp, options)
+    q, u = cs.SX.sym("q", nq), cs.SX.sym("u", n_u)
+    return solver, cs.Function("step", [q, u, rows], [step(q, u)])
+
+
 class IpoptMPC:
     """The MPC problem of ``mpc`` (fingertips or a hand) as a multiple-shooting NLP solved by IPOPT.
 
     Args:
         mpc: the controller whose model, system, cost, box, horizon and h are solved; its
-            frozen rows come from :meth:`ContactImplicitMPC.frozen_rows` (frozen gaps only).
+            frozen rows come from :meth:`ContactImplicitMPC.freeze` (the complementarity-free
+            model with frozen gaps only).
         n_rows: rows of J̃ (contact slots × facets) the NLP is built for.
         max_iter: IPOPT's iteration cap (the reference's hands: 50; its fingertips: 100 for
             the foam brick, 500 for the cube).
@@ -251,48 +343,14 @@ class IpoptMPC:
         tip_height: tuple[float, float] | None = None,
         formulation: str = "lean",
     ):
-        import casadi as cs
-
-        hand = _check(mpc, n_rows, max_iter, tip_height, formulation)
+        self._hand = _check(mpc, n_rows, max_iter, tip_height, formulation)
         self.mpc, self.n_rows = mpc, n_rows
-        nq, nv, n_u, T = mpc.layout.nq, mpc.layout.nv, mpc.system.n_robot, mpc.horizon
-        cost = mpc.cost
-        q0 = cs.SX.sym("q0", nq)
-        target_p, target_q = cs.SX.sym("target_p", 3), cs.SX.sym("target_q", 4)
-        phi, K, D = (cs.SX.sym(name, n_rows) for name in ("phi", "K", "D"))
-        jac = cs.SX.sym("jac", n_rows, nv)
-        step = _step_function(mpc, formulation, jac, phi, K, D)
-        path_cost, state_cost = _cost_functions(cost, _tips_function(mpc, hand), target_q)
-
-        w, g, objective, q = [], [], 0, q0
-        for _ in range(T):
-            u = cs.SX.sym(f"u{len(w)}", n_u)
-            objective += path_cost(q, u)
-            predicted = step(q, u)
-            q = cs.SX.sym(f"q{len(w)}", nq)
-            w += [u, q]
-            g.append(predicted - q)
-            objective += state_cost(q)
-        final = cost.position * cs.sumsqr(q[0:3] - target_p)
-        final += cost.orientation * (1 - cs.dot(q[3:7], target_q) ** 2)
-        objective += cost.final * final
-
-        rows = cs.vertcat(phi, cs.vec(jac), K, D)
-        params = cs.vertcat(q0, target_p, target_q, rows)
-        nlp = {"x": cs.vertcat(*w), "f": objective, "g": cs.vertcat(*g), "p": params}
-        options = {
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "print_time": 0,
-            "ipopt.max_iter": max_iter,
-        }
-        self.solver = cs.nlpsol("mpc", "ipopt", nlp, options)
-        q, u = cs.SX.sym("q", nq), cs.SX.sym("u", n_u)
-        self.step_function = cs.Function("step", [q, u, rows], [step(q, u)])
-        """``(q (nq,), u (n_u,), rows) ↦ q⁺``: the NLP's model step; ``rows`` are the parameter
-        vector's entries after the target (:meth:`parameters`)."""
-        self._lbx, self._ubx = _state_bounds(mpc, formulation, hand, tip_height)
-        self._shape, self._nq = (T, n_u), nq
+        self._formulation, self._tip_height = formulation, tip_height
+        self.solver, self.step_function = _nlp(mpc, n_rows, max_iter, formulation, self._hand)
+        """``step_function (q (nq,), u (n_u,), rows) ↦ q⁺``: the NLP's model step; ``rows``
+        are the parameter vector's entries after the target (:meth:`parameters`)."""
+        self._shape, self._nq = (mpc.horizon, mpc.system.n_robot), mpc.layout.nq
+        self._lbx, self._ubx = self.bounds(mpc.lower, mpc.upper)
         self.reset()
 
     def reset(self) -> None:
@@ -301,26 +359,66 @@ class IpoptMPC:
         into the grasp term's rotation)."""
         self._guess = None
 
+    def bounds(self, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds ``(T·(n_u + nq),)`` on the decision variables for the control box ``lower,
+        upper`` (``T·n_u`` values each, in the MPC's order), with the states' boxes."""
+        lower = torch.as_tensor(lower).double().reshape(self._shape).numpy()
+        upper = torch.as_tensor(upper).double().reshape(self._shape).numpy()
+        return _state_bounds(
+            lower, upper, self._nq, self._formulation, self._hand, self._tip_height
+        )
+
     def parameters(self, q, contacts: Contacts, target_p, target_quat) -> np.ndarray:
         """The NLP's parameter vector at state ``q (nq,)``: q₀, the target and the frozen rows."""
         q = torch.as_tensor(q, dtype=torch.float64)
         check_shape("q", q, f"({self._nq},)", q.shape == (self._nq,))
         with torch.no_grad():
-            jac, phi, K, D = self.mpc.frozen_rows(q.to(self.mpc.dtype), contacts.to(self.mpc.dtype))
+            frozen = self.mpc.freeze(q.to(self.mpc.dtype), contacts.to(self.mpc.dtype))
+        return self.frozen_parameters(q, frozen, target_p, target_quat)
+
+    def frozen_parameters(self, q, frozen, target_p, target_quat) -> np.ndarray:
+        """:meth:`parameters` from the MPC's frozen step ``frozen`` (a
+        :class:`~torchcontact.frozen.FrozenComplementarityFree` of :attr:`n_rows` rows)."""
+        if isinstance(frozen, FrozenRelaxedQP):
+            raise ValueError(QP_REFUSAL)
+        if not isinstance(frozen, FrozenComplementarityFree):
+            raise ValueError(f"frozen must be complementarity-free, got {type(frozen).__name__}")
+        phi = frozen.phi
         if phi.shape[-1] != self.n_rows:
             raise ValueError(f"contacts must give {self.n_rows} rows, got {phi.shape[-1]}")
-        K = K.expand(phi.shape)
-        D = torch.zeros_like(phi) if D is None else D.expand(phi.shape)
+        K = frozen.stiffness.expand(phi.shape)
+        D = torch.zeros_like(phi) if frozen.damping is None else frozen.damping.expand(phi.shape)
         pieces = [
-            q,
+            torch.as_tensor(q),
             torch.as_tensor(target_p),
             torch.as_tensor(target_quat),
             phi,
-            jac.mT.reshape(-1),  # CasADi's vec() stacks columns
+            frozen.jac.mT.reshape(-1),  # CasADi's vec() stacks columns
             K,
             D,
         ]
-        return torch.cat([x.double().reshape(-1) for x in pieces]).numpy()
+        return torch.cat([x.detach().double().reshape(-1) for x in pieces]).numpy()
+
+    def rollout(self, params: np.ndarray, controls) -> np.ndarray:
+        """The decision variables ``(T·(n_u + nq),)`` of ``controls`` (``T·n_u`` values) with
+        the states the NLP's model steps to from ``params``' q₀: a start on its constraints."""
+        controls = torch.as_tensor(controls).double().reshape(self._shape).numpy()
+        q, rows = params[: self._nq], params[self._nq + 7 :]
+        pieces = []
+        for u in controls:
+            q = np.asarray(self.step_function(q, u, rows)).ravel()
+            pieces += [u, q]
+        return np.concatenate(pieces)
+
+    def solve(self, params: np.ndarray, guess: dict, lbx=None, ubx=None) -> tuple[dict, dict]:
+        """One IPOPT solve from ``guess`` (``x0`` and optionally ``lam_x0``, ``lam_g0``) in
+        ``lbx ≤ w ≤ ubx`` (default the MPC's box): its solution (NumPy arrays ``x``, ``f``,
+        ``lam_x``, ``lam_g``) and IPOPT's stats."""
+        lbx = self._lbx if lbx is None else lbx
+        ubx = self._ubx if ubx is None else ubx
+        solution = self.solver(**guess, lbx=lbx, ubx=ubx, lbg=0.0, ubg=0.0, p=params)
+        solution = {key: value.full().ravel() for key, value in solution.items()}
+        return solution, self.solver.stats()
 
     def plan(self, q, contacts: Contacts, target_p, target_quat) -> IpoptPlan:
         """Solve at state ``q (nq,)`` from the previous solution; returns u₀ and the stats."""
@@ -331,23 +429,120 @@ class IpoptMPC:
             held = np.concatenate([np.zeros(n_u), params[: self._nq]])
             n_w, n_g = self._lbx.shape[0], T * self._nq
             self._guess = {"x0": np.tile(held, T), "lam_x0": np.zeros(n_w), "lam_g0": np.zeros(n_g)}
-        solution = self.solver(
-            **self._guess, lbx=self._lbx, ubx=self._ubx, lbg=0.0, ubg=0.0, p=params
-        )
+        solution, stats = self.solve(params, self._guess)
         solve_ms = 1e3 * (time.perf_counter() - start)
-        stats = self.solver.stats()
-        x = solution["x"].full().ravel()
-        self._guess = {
-            "x0": x,
-            "lam_x0": solution["lam_x"].full().ravel(),
-            "lam_g0": solution["lam_g"].full().ravel(),
-        }
+        x = solution["x"]
+        self._guess = {"x0": x, "lam_x0": solution["lam_x"], "lam_g0": solution["lam_g"]}
         controls = x.reshape(T, n_u + self._nq)[:, :n_u]
         return IpoptPlan(
             control=controls[0].copy(),
             controls=controls,
-            cost=float(solution["f"]),
+            cost=float(solution["f"][0]),
             iterations=int(stats["iter_count"]),
             status=str(stats["return_status"]),
             solve_ms=solve_ms,
         )
+
+
+class IpoptPlanner:
+    """A :class:`~torchcontact.mpc.planners.Planner` that solves the MPC's problem by IPOPT,
+    as the NLP of :class:`IpoptMPC`.
+
+    ``plan(objective, x0, box, args)`` takes the MPC's ``args = (q, frozen, target_p,
+    target_quat)``, ``frozen`` the step it froze (:meth:`ContactImplicitMPC.freeze`). Each row of
+    ``x0 (B, T·n_u)`` is one solve, started from those controls with the states the NLP's
+    model steps to under them (a start on its constraints; no multipliers), within the row of
+    ``box``. It returns the controls in ``x0``'s dtype, ``f`` the NLP's own objective (its
+    quaternion moves to first order, so ``f`` is within about 1e-3 of the MPC's cost of the
+    same controls), ``iterations`` IPOPT's and ``evaluations`` its objective evaluations,
+    each summed over the rows; :attr:`status` keeps IPOPT's return status of the last solve.
+
+    ``objective`` is never evaluated: it names the MPC whose problem is solved (its
+    ``value_and_grad`` is that MPC's bound method), unless ``mpc`` is given. One
+    :class:`IpoptMPC` is built per (MPC, number of frozen rows) and kept.
+
+    Args:
+        mpc: the controller whose problem is solved; None: the MPC that calls :meth:`plan`.
+        max_iter, tip_height, formulation: as :class:`IpoptMPC`.
+    """
+
+    def __init__(
+        self,
+        mpc: ContactImplicitMPC | None = None,
+        max_iter: int = REFERENCE_MAX_ITER,
+        tip_height: tuple[float, float] | None = None,
+        formulation: str = "lean",
+    ):
+        _check_options(max_iter, tip_height, formulation)
+        if mpc is not None and not isinstance(mpc, ContactImplicitMPC):
+            raise ValueError(f"mpc must be a ContactImplicitMPC or None, got {type(mpc).__name__}")
+        self.mpc, self.max_iter = mpc, max_iter
+        self.tip_height, self.formulation = tip_height, formulation
+        self.status: str | None = None
+        self._problem: ContactImplicitMPC | None = None
+        self._baselines: dict[int, IpoptMPC] = {}
+
+    def baseline(self, mpc: ContactImplicitMPC, n_rows: int) -> IpoptMPC:
+        """The :class:`IpoptMPC` of ``mpc`` for ``n_rows`` frozen rows (built once)."""
+        if self._problem is not mpc:
+            self._problem, self._baselines = mpc, {}
+        if n_rows not in self._baselines:
+            self._baselines[n_rows] = IpoptMPC(
+                mpc, n_rows, self.max_iter, self.tip_height, self.formulation
+            )
+        return self._baselines[n_rows]
+
+    def _solved_mpc(self, objective: Objective) -> ContactImplicitMPC:
+        """:attr:`mpc`, else the MPC whose bound method ``objective`` is."""
+        mpc = self.mpc
+        if mpc is None:
+            mpc = getattr(getattr(objective, "value_and_grad", None), "__self__", None)
+        if not isinstance(mpc, ContactImplicitMPC):
+            raise ValueError(
+                "objective must be a ContactImplicitMPC's (its value_and_grad a bound method of "
+                "the MPC); to plan another objective, give IpoptPlanner(mpc=...)"
+            )
+        return mpc
+
+    def plan(self, objective: Objective, x0, box, args: tuple = ()) -> PlannerResult:
+        if len(args) != 4:
+            raise ValueError(
+                f"args must be the MPC's (q, frozen, target_p, target_quat), got {args}"
+            )
+        q, frozen, target_p, target_quat = args
+        mpc = self._solved_mpc(objective)
+        baseline = self.baseline(mpc, frozen.phi.shape[-1])
+        params = baseline.frozen_parameters(q, frozen, target_p, target_quat)
+        lower, upper = (torch.as_tensor(bound).expand(x0.shape) for bound in box)
+        n_u = mpc.system.n_robot
+        xs, fs, iterations, evaluations = [], [], 0, 0
+        for start, low, high in zip(x0, lower, upper, strict=True):
+            lbx, ubx = baseline.bounds(low, high)
+            guess = {"x0": baseline.rollout(params, start)}
+            solution, stats = baseline.solve(params, guess, lbx, ubx)
+            xs.append(solution["x"].reshape(mpc.horizon, -1)[:, :n_u].reshape(-1))
+            fs.append(float(solution["f"][0]))
+            iterations += int(stats["iter_count"])
+            evaluations += int(stats["n_call_nlp_f"])
+            self.status = str(stats["return_status"])
+        x = torch.as_tensor(np.stack(xs), dtype=x0.dtype, device=x0.device)
+        f = torch.as_tensor(fs, dtype=x0.dtype, device=x0.device)
+        return PlannerResult(x, f, iterations, evaluations)
+
+
+def _ipopt(
+    max_iter: int = REFERENCE_MAX_ITER, memory: int | None = None, compile: bool = False, **options
+) -> IpoptPlanner:
+    """``planner("ipopt", max_iter=..., memory=..., compile=...)``: an :class:`IpoptPlanner`
+    capped at ``max_iter`` IPOPT iterations; L-BFGS's ``memory`` and ``compile`` do not apply
+    and are ignored; other ``options`` go to :class:`IpoptPlanner`."""
+    return IpoptPlanner(max_iter=max_iter, **options)
+
+
+def register_ipopt() -> None:
+    """Register :class:`IpoptPlanner` as planner ``"ipopt"`` (then
+    ``ContactImplicitMPC.from_env(env, plant, planner="ipopt")`` plans through IPOPT, capped
+    at the settings' ``max_iter`` iterations; its settings must freeze the gaps); a second
+    call does nothing."""
+    if PLANNERS.get("ipopt") is not _ipopt:
+        register_planner("ipopt", _ipopt)

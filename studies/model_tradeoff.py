@@ -68,9 +68,10 @@ from tqdm.auto import tqdm
 
 from studies import full_dynamic as fd
 from studies import report
+from torchcontact.cli.learn_k import collection_mpc
 from torchcontact.contacts import Contacts
 from torchcontact.integrate import JointLayout, integrate
-from torchcontact.learn.data import Transitions, collect, load, select_contacts, system_header
+from torchcontact.learn.data import Transitions, collect, load, system_header
 from torchcontact.learn.evaluate import pose_metrics
 from torchcontact.learn.fit import object_indices, system_terms
 from torchcontact.learn.scenes import make_scene
@@ -228,7 +229,7 @@ class Inputs:
     def select(self, index: torch.Tensor) -> Inputs:
         """Rows ``index`` (a long tensor of any shape, or a 0-d index for one state)."""
         Q = self.Q if self.Q.dim() < self.b.dim() else self.Q[index]
-        return Inputs(Q, self.b[index], select_contacts(self.contacts, index))
+        return Inputs(Q, self.b[index], self.contacts[index])
 
     def to(self, dtype: torch.dtype, device: str | torch.device) -> Inputs:
         kw = {"dtype": dtype, "device": device}
@@ -488,7 +489,7 @@ def hand_scene(name: str, data: Path, size: Size, progress: bool = True) -> Quas
         steps=size.hand_steps,
         actions=size.actions,
         progress=progress,
-        mpc_options={"compile": False},
+        planner=lambda scene: collection_mpc(scene, compile=False),
     )
     transitions = load(directory, size.trajectories)
     meta = transitions.meta

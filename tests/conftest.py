@@ -6,7 +6,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-import torchcontact  # noqa: E402, F401  (sets MUJOCO_GL before any test module imports mujoco)
+import torchcontact.sim  # noqa: E402, F401  (sets MUJOCO_GL before any test imports mujoco)
 
 torch.set_num_threads(1)
 

@@ -6,8 +6,8 @@ import math
 import torch
 
 from torchcontact.environments.costs import ManipulationCost, tilt_cost, up_axis
+from torchcontact.environments.hands import TRIFINGER_ENV
 from torchcontact.environments.tasks import quat_from_yaw_pitch_roll
-from torchcontact.mpc.hands import MPC_SETTINGS
 
 DT = torch.float64
 
@@ -37,7 +37,7 @@ def test_tilt_cost_ignores_yaw_and_grows_as_one_minus_cos_of_the_lean():
 
 
 def test_manipulation_cost_charges_the_tilt_of_planned_states_only():
-    without = MPC_SETTINGS["trifinger"].cost
+    without = TRIFINGER_ENV.model.cost
     cost = dataclasses.replace(without, tilt=100.0)
     T = 4
     quats = _quat().expand(T + 1, 4).clone()

@@ -16,8 +16,8 @@ from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV, tips_bef
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
+from torchcontact.shapes import make_object, object_names
 from torchcontact.sim.hands import HANDS, Hand
-from torchcontact.sim.objects import make_object, object_names
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
 EAGER = MPCSettings(compile=False)

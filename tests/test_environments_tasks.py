@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from torchcontact.environments import tasks
+from torchcontact.environments.hands import ALLEGRO_ENV
 from torchcontact.environments.tasks import (
     OBJECT_SETTINGS,
     PAPER_PAIRS,
@@ -21,8 +22,8 @@ from torchcontact.environments.tasks import (
     quaternion_error,
     sample,
 )
+from torchcontact.shapes import object_names
 from torchcontact.sim.hands import HandEnv
-from torchcontact.sim.objects import object_names
 
 SEEDS = range(tasks.TRIALS)
 
@@ -77,7 +78,7 @@ def test_flip_and_in_air_targets_spread_over_their_distributions():
 
 
 def test_rest_heights_match_the_meshes():
-    from torchcontact.sim.objects import make_object
+    from torchcontact.shapes import make_object
 
     for name, settings in OBJECT_SETTINGS.items():
         assert make_object(name).resting_height() == pytest.approx(settings.rest_height, abs=5e-4)
@@ -204,14 +205,11 @@ def test_hand_criteria():
         tasks.sample_in_hand(_flat_rest, -1)
 
 
-def test_allegro_suite_starts_the_stick_across_the_palm():
-    from torchcontact.mpc.suites import SUITES
-    from torchcontact.sim.hands import HandEnv
-
-    env = HandEnv("allegro", "stick", overflow="deepest")
+def test_allegro_environment_starts_the_stick_across_the_palm():
+    plant = ALLEGRO_ENV.make_plant("stick")
     low, high = tasks.ON_PALM_OBJECT_YAW_RANGES["stick"]
     for seed in range(5):
-        initial, _ = SUITES["allegro"].sample(env, "on-palm", "stick", seed)
+        initial, _ = ALLEGRO_ENV.sample(plant, "on-palm", seed)
         assert low <= 2 * np.arctan2(initial[6], initial[3]) <= high
 
 

@@ -11,6 +11,7 @@ import pytest
 
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
+from torchcontact.environments.presets import PAPER
 from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc.report import summarize
 from torchcontact.mpc.trials import (
@@ -24,6 +25,7 @@ from torchcontact.mpc.trials import (
     finished_record,
     run_trial,
     run_trials,
+    trial_configs,
 )
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 
@@ -75,6 +77,23 @@ def test_a_config_builds_its_environment_plant_and_mpc():
         env.preset(), max_iter=5, dtype="float64", compile=False, gaps="frozen", memory=8
     )
     assert CONFIG.variant == "fingertips" and CONFIG.name == "fingertips_rotation_cube_seed0"
+
+
+def test_trial_configs_fill_in_the_environments_defaults():
+    env = environment("trifinger")
+    configs = trial_configs("trifinger", [("in-hand", "cube"), ("in-hand", "mug")], range(2))
+    assert [(c.task, c.object, c.seed) for c in configs] == [
+        ("in-hand", obj, seed) for obj in ("cube", "mug") for seed in (0, 1)
+    ]
+    first = configs[0]
+    assert first.settings == env.preset() and first.max_steps == env.criterion.max_steps
+    assert first.model == DEFAULT_MODEL and first.stiffness == env.default_stiffness == 0.5
+    assert first.relaxation is None and first.learned is None
+    (qp,) = trial_configs("fingertips", [("rotation", "cube")], [3], PAPER, 7, model="relaxed_qp")
+    assert (qp.seed, qp.max_steps, qp.settings) == (3, 7, PAPER)
+    assert qp.relaxation == PAPER_RELAXATION and qp.stiffness is None
+    (learned,) = trial_configs("fingertips", [("rotation", "cube")], [0], learned="model.pt")
+    assert learned.stiffness is None and learned.variant == "fingertips_learned"
 
 
 def test_the_relaxed_qp_takes_the_papers_kappa_at_the_objects_step():

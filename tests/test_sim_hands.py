@@ -10,6 +10,7 @@ import pytest
 import torch
 import trimesh
 
+from torchcontact.shapes import object_names
 from torchcontact.sim.hands import (
     ALLEGRO,
     CONTACTS_PER_TIP,
@@ -18,7 +19,6 @@ from torchcontact.sim.hands import (
     HandEnv,
     scene_contact_slots,
 )
-from torchcontact.sim.objects import object_names
 
 
 @pytest.fixture(scope="module", params=sorted(HANDS))
@@ -61,17 +61,19 @@ def test_every_object_builds_and_rests_on_its_support(hand, name):
 def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
     """Dozens of part–ground contacts each carry a softplus floor force: kept per body pair to
     a spanning four, the paper's model predicts a resting object to stay within 1 mm a step."""
-    from torchcontact.mpc.hands import hand_mpc
+    from torchcontact.environments.hands import TRIFINGER_ENV
+    from torchcontact.environments.presets import MPCSettings
+    from torchcontact.mpc.controller import ContactImplicitMPC
 
     env = HandEnv("trifinger", name, overflow="deepest")
-    mpc = hand_mpc("trifinger")
+    mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, env, settings=MPCSettings(compile=False))
     for _ in range(10):  # settle into the ground
         env.step(np.zeros(env.nu))
     contacts = env.contacts(torch.float64)
     assert env.detector.found == 4
     q = torch.as_tensor(env.state())
     still = torch.zeros(1, mpc.horizon, env.nu, dtype=torch.float64)
-    states = mpc.rollout(q, still, mpc.frozen_rows(q, contacts))
+    states = mpc.rollout(q, still, mpc.freeze(q, contacts))
     rise = (states[0, 1:, 2] - states[0, :-1, 2]).abs()
     assert float(rise.max()) < 1e-3
 

@@ -12,8 +12,8 @@ import pytorch_kinematics as pk
 import torch
 
 from torchcontact.assets import asset_path
+from torchcontact.shapes import make_object
 from torchcontact.sim.hands import ALLEGRO, HANDS, TRIFINGER
-from torchcontact.sim.objects import make_object
 from torchcontact.sim.robot import Actuator, Robot
 from torchcontact.sim.scene import scene_spec
 

@@ -33,8 +33,13 @@ def validate_args(value: bool) -> Iterator[None]:
 
 
 def checking_values() -> bool:
-    """Whether value checks run now."""
-    return _VALIDATE and not torch.compiler.is_compiling()
+    """Whether value checks run now: not while compiling, nor under ``torch.func`` transforms
+    (vmap), whose batched tensors cannot be read on the host."""
+    return (
+        _VALIDATE
+        and not torch.compiler.is_compiling()
+        and torch._C._functorch.maybe_current_level() is None
+    )
 
 
 def _values(x: torch.Tensor | float) -> torch.Tensor:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import torch
@@ -173,18 +173,8 @@ def run(args: argparse.Namespace) -> dict:
 
     sweep = sweep_constant(args.grid, splits["val"], detector, args.horizon, args.stride)
     best_k = min(sweep, key=lambda row: row["combined"])["stiffness"]
-    config = FitConfig(
-        stiffness=args.stiffness,
-        damping=args.damping,
-        initial_stiffness=best_k,
-        hidden=args.hidden,
-        distance_scale=args.distance_scale,
-        epochs=args.epochs,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        patience=args.patience,
-        seed=args.seed,
-    )
+    names = [f.name for f in fields(FitConfig) if f.name != "initial_stiffness"]
+    config = FitConfig(initial_stiffness=best_k, **{name: getattr(args, name) for name in names})
     result = fit(build_model(config, meta), steps["train"], steps["val"], weights, config, progress)
 
     models = {

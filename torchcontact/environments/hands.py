@@ -16,8 +16,8 @@ from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, Obj
 from torchcontact.environments.costs import ManipulationCost
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
+from torchcontact.shapes import ObjectMesh, object_names
 from torchcontact.sim.hands import ALLEGRO, MODEL_FRICTION, TRIFINGER, Hand, HandEnv
-from torchcontact.sim.objects import ObjectMesh, object_names
 
 HAND_METRIC = (50.0, 50.0, 50.0, 0.1, 0.1, 0.1)
 """εMₒ/h² of a 10 g object in the hands' model (translation [N/m], rotation)."""

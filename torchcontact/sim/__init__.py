@@ -1,5 +1,6 @@
 """The MuJoCo bridge: the only package of torchcontact that imports ``mujoco``."""
 
+from torchcontact.shapes import OBJECT_SIZES, ObjectMesh, load_object, make_object, object_names
 from torchcontact.sim.rendering import select_gl_backend
 
 # mujoco reads MUJOCO_GL once, when first imported: choose the backend before any sim import.
@@ -9,15 +10,7 @@ from torchcontact.sim.detect import ContactDetector
 from torchcontact.sim.dynamics import bias_force, joint_layout, mass_matrix
 from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
 from torchcontact.sim.kinematics import FingertipKinematics
-from torchcontact.sim.objects import (
-    OBJECT_SIZES,
-    ObjectMesh,
-    add_goal_marker,
-    add_object,
-    load_object,
-    make_object,
-    object_names,
-)
+from torchcontact.sim.objects import add_goal_marker, add_object
 from torchcontact.sim.robot import Actuator, Robot
 from torchcontact.sim.user_scene import DEFAULT_EPSILON, UserScene, describe_scene
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from torchcontact.shapes import ObjectMesh
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.objects import ObjectMesh
 from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
@@ -38,7 +38,7 @@ class FingertipsEnv(Plant):
     """MuJoCo plant of the three-fingertip tasks, built in code with ``MjSpec``.
 
     Args:
-        obj: a built-in object name (see :func:`~torchcontact.sim.objects.object_names`), a
+        obj: a built-in object name (see :func:`~torchcontact.shapes.object_names`), a
             mesh file path, or an :class:`~torchcontact.sim.objects.ObjectMesh`.
         object_size: for a mesh path, the largest extent [m] it is scaled to, or its
             bounding box (x, y, z) [m].
@@ -57,7 +57,7 @@ class FingertipsEnv(Plant):
         timestep: MuJoCo substep [s].
         kp, kd: PD gains of the tip servo [N/m], [N·s/m].
         collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
-            :func:`~torchcontact.sim.objects.make_object`.
+            :func:`~torchcontact.shapes.make_object`.
     """
 
     def __init__(

@@ -20,8 +20,8 @@ import numpy as np
 import torch
 
 from torchcontact.assets import asset_path
+from torchcontact.shapes import OBJECT_SIZES, ObjectMesh
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.objects import OBJECT_SIZES, ObjectMesh
 from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
 from torchcontact.sim.robot import Robot
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
@@ -268,7 +268,7 @@ class HandEnv(Plant):
         overflow: ``"error"`` or ``"deepest"`` when more object contacts exist than slots.
         timestep: MuJoCo substep [s].
         collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
-            :func:`~torchcontact.sim.objects.make_object` and
+            :func:`~torchcontact.shapes.make_object` and
             :func:`~torchcontact.sim.plant.resolve_object`.
     """
 

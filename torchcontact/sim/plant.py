@@ -13,14 +13,14 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import Contacts
-from torchcontact.sim.detect import ContactDetector
-from torchcontact.sim.objects import (
+from torchcontact.shapes import (
     COLLISIONS,
     OBJECT_SIZES,
     ObjectMesh,
     load_object,
     make_object,
 )
+from torchcontact.sim.detect import ContactDetector
 
 
 class Plant:
@@ -129,7 +129,7 @@ def resolve_object(
     mesh path (scaled to ``object_size``) or an :class:`ObjectMesh` (as is).
 
     ``collision`` (one of :data:`~torchcontact.sim.objects.COLLISIONS`): how a built-in
-    object collides, see :func:`~torchcontact.sim.objects.make_object`; for a mesh path
+    object collides, see :func:`~torchcontact.shapes.make_object`; for a mesh path
     ``"hull"`` keeps its convex hull and the others its default decomposition.
     """
     if collision not in COLLISIONS:
@@ -148,11 +148,12 @@ def resolve_object(
 
 
 def as_vector(name: str, value, size: int) -> np.ndarray:
-    """``value`` as a finite float64 ``(size,)`` array (NumPy, list or tensor)."""
+    """``value`` as a finite float64 ``(size,)`` array of its own (a copy: the caller's NumPy
+    array or tensor is never changed through it)."""
     if isinstance(value, torch.Tensor):
         value = value.detach().cpu().numpy()
     try:
-        array = np.asarray(value, dtype=np.float64)
+        array = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be {size} numbers, got {value!r}") from None
     if array.shape != (size,):

@@ -7,7 +7,8 @@ from collections.abc import Sequence
 
 import mujoco
 
-from torchcontact.sim.objects import ObjectMesh, add_goal_marker, add_object
+from torchcontact.shapes import ObjectMesh
+from torchcontact.sim.objects import add_goal_marker, add_object
 
 OBJECT_BODY = "object"
 GOAL_BODY = "goal"
