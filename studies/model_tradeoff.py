@@ -493,7 +493,7 @@ def hand_scene(name: str, data: Path, size: Size, progress: bool = True) -> Quas
     )
     transitions = load(directory, size.trajectories)
     meta = transitions.meta
-    detector = make_scene(name, "cube", meta["task"]).env.detector
+    detector = make_scene(name, "cube", meta["task"]).plant.detector
     title = f"{name} cube, {size.actions} actions (quasi-dynamic, h = {meta['h']} s)"
     stiffness = meta["paper_stiffness"]
     return QuasiDynamicScene(name, title, transitions, detector, stiffness, 0.1, size.stride)

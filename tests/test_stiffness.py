@@ -42,7 +42,8 @@ def inputs(batch=(), dtype=torch.float32):
 
 
 def test_every_registered_name_is_covered():
-    assert set(KINDS) == set(PARAMETERIZATIONS)
+    # the object-frame network has tests of its own (test_networks.py)
+    assert set(KINDS) | {"object_contact_network"} == set(PARAMETERIZATIONS)
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
@@ -242,6 +243,7 @@ def test_parameterization_factory():
     for name, cls in PARAMETERIZATIONS.items():
         kwargs = {"rows": ROWS} if name == "per_row" else {}
         kwargs = {"nq": NQ, "rows": ROWS} if name == "state_network" else kwargs
+        kwargs = {"facets": FACETS} if name == "object_contact_network" else kwargs
         assert type(parameterization(name, **kwargs)) is cls
     for bad in ("nope", "Constant", True, None, [1.0]):
         with pytest.raises(ValueError, match="per_row"):
