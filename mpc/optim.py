@@ -267,10 +267,10 @@ ROUNDS_PER_CALL = 4
 """Rounds one compiled call runs with ``compile_fun``. A traced objective's tensors are tiny,
 so a call costs mostly its fixed overhead (guards, argument flattening, the host sync of
 the flags), which several rounds share: 4 rounds per call cut the fingertip MPC's solve by
-about a fifth against 1 (docs/journal.md, "Three-fingertip MPC", session 12), at twice the compile
-time. A problem that stops within a call stays frozen for the call's remaining rounds (the
-iterates are those of one round per call); the call's ``budget`` stops every problem after
-``max_iter`` rounds."""
+about a fifth against 1 (docs/journal.md, "Three-fingertip MPC"), at twice the compile time.
+A problem that stops within a call stays frozen for the call's remaining rounds (the iterates
+are those of one round per call); the call's ``budget`` stops every problem after ``max_iter``
+rounds."""
 
 
 def _rounds(
@@ -305,8 +305,8 @@ TRACED_FUN_OPTIONS = {"cpp_wrapper": True, "post_grad_fusion_options": {"decompo
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
 (buffer allocation and views, about a hundred of each) than in its kernels; a C++ wrapper
-cuts the fingertip MPC's round by about a quarter (docs/journal.md, "Three-fingertip MPC", session
-12), at a longer first compilation (cached on disk like the rest). Inductor's
+cuts the fingertip MPC's round by about a quarter (docs/journal.md, "Three-fingertip MPC"), at
+a longer first compilation (cached on disk like the rest). Inductor's
 ``decompose_mm_pass`` writes small matrix products as pointwise products and sums, which fuse
 with their neighbours, instead of external BLAS calls of a few µs each: pytorch-kinematics'
 4×4 transforms are about 70 such calls per TriFinger round (:data:`SMALL_PRODUCTS`)."""

@@ -456,8 +456,7 @@ def _foam_brick():
 
 def _stick():
     """Rod along x with an elliptic cross-section and rounded ends, as the paper's stick mesh
-    (its ends taper over their last 15 mm). Over 100 Allegro seeds it turned 55 % against the
-    box's 41 % (docs/journal.md, TriFinger and Allegro, session 16)."""
+    (its ends taper over their last 15 mm)."""
     half, cap = 0.065, 0.015  # half length; length of each ellipsoidal end cap [m]
     # half a step off the axes, so that a flat facet, not a ridge, rests on the support
     angles = (np.arange(32) + 0.5) * (2 * np.pi / 32)
