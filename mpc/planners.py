@@ -16,6 +16,7 @@ from typing import NamedTuple, Protocol
 import torch
 
 from torchcontact.mpc.optim import lbfgs_box
+from torchcontact.validation import register
 
 
 @dataclass(frozen=True)
@@ -91,11 +92,7 @@ PLANNERS: dict[str, Callable[..., Planner]] = {"lbfgs": LBFGS}
 
 def register_planner(name: str, factory: Callable[..., Planner]) -> None:
     """Make ``planner(name, **kw)`` call ``factory(**kw)``; ``name`` must be new."""
-    if not isinstance(name, str) or not name or name in PLANNERS:
-        raise ValueError(f"name must be a new planner name, got {name!r} (taken: {list(PLANNERS)})")
-    if not callable(factory):
-        raise ValueError(f"factory must be callable, got {factory!r}")
-    PLANNERS[name] = factory
+    register(PLANNERS, name, factory, "planner")
 
 
 def planner(name: str, **options) -> Planner:

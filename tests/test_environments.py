@@ -28,7 +28,7 @@ def test_the_three_environments_are_registered_and_unknown_names_are_refused():
     assert set(ENVIRONMENTS) == {"fingertips", "trifinger", "allegro"}
     with pytest.raises(ValueError, match="env must be one of"):
         environment("shadow_hand")
-    with pytest.raises(ValueError, match="env.name must be new"):
+    with pytest.raises(ValueError, match="name must be a new environment name"):
         register_environment(ENVIRONMENTS["trifinger"])
 
 

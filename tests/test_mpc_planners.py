@@ -28,6 +28,6 @@ def test_unknown_and_taken_planner_names_are_refused():
         planner("newton")
     with pytest.raises(ValueError, match="name must be a new planner name"):
         register_planner("lbfgs", LBFGS)
-    with pytest.raises(ValueError, match="factory must be callable"):
+    with pytest.raises(ValueError, match="planner 'not_callable' is not a valid planner"):
         register_planner("not_callable", 3)
     assert "not_callable" not in PLANNERS

@@ -82,33 +82,18 @@ class FrozenRelaxedQP(NamedTuple):
     def linearized(self, Q: torch.Tensor, b: torch.Tensor) -> FrozenRelaxedQP:
         """The step with the interior-point solution at ``(Q, b)`` attached, solved outside any
         gradient transform; :meth:`velocity` then differentiates one Newton step from it."""
-        solution = relaxed_qp_solve(
-            Q,
-            b,
-            self.jac,
-            self.phi,
-            self.h,
-            self.active,
-            self.relaxation,
-            self.iterations,
-            compile_steps=self.compile_steps,
-        )
+        solution = relaxed_qp_solve(Q, b, *self._problem, compile_steps=self.compile_steps)
         return self._replace(solution=solution)
 
     def velocity(self, Q: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """Next velocity ``(..., nv)``, from the attached solution when there is one."""
-        v, _ = relaxed_qp_velocity(
-            Q,
-            b,
-            self.jac,
-            self.phi,
-            self.h,
-            self.active,
-            self.relaxation,
-            self.iterations,
-            solution=self.solution,
-        )
+        v, _ = relaxed_qp_velocity(Q, b, *self._problem, solution=self.solution)
         return v
+
+    @property
+    def _problem(self) -> tuple:
+        """The QP's frozen data in the solver's argument order, after ``Q`` and ``b``."""
+        return self.jac, self.phi, self.h, self.active, self.relaxation, self.iterations
 
     def advance_gaps(self, v: torch.Tensor) -> FrozenRelaxedQP:
         """Not defined for the QP: its MPC plans with frozen gaps (the paper's)."""

@@ -30,6 +30,7 @@ from torchcontact.relaxed_qp import (
     relaxed_qp_velocity,
 )
 from torchcontact.stiffness import Constant, Parameterization, Relative, parameterization
+from torchcontact.validation import register
 
 
 class ContactModel(nn.Module):
@@ -217,11 +218,7 @@ configuration, the Anitescu QP by OSQP, and the QP with relaxed complementarity.
 
 def register_model(name: str, factory: Callable[..., ContactModel]) -> None:
     """Make ``contact_model(name, **kw)`` call ``factory(**kw)``; ``name`` must be new."""
-    if not isinstance(name, str) or not name or name in MODELS:
-        raise ValueError(f"name must be a new model name, got {name!r} (taken: {sorted(MODELS)})")
-    if not callable(factory):
-        raise ValueError(f"factory must be callable, got {factory!r}")
-    MODELS[name] = factory
+    register(MODELS, name, factory, "model")
 
 
 def contact_model(name: str, **kwargs) -> ContactModel:

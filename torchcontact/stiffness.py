@@ -16,6 +16,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from torchcontact.contacts import Contacts
+from torchcontact.validation import register
 
 
 def _log_positive(name: str, value: float) -> float:
@@ -173,15 +174,13 @@ def register_parameterization(name: str, cls: type[Parameterization]) -> type[Pa
 
     ``name`` must be a new non-empty string and ``cls`` a subclass of :class:`Parameterization`.
     """
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"name must be a non-empty string, got {name!r}")
-    if name in PARAMETERIZATIONS:
-        raise ValueError(
-            f"name must be new, got {name!r} (taken by {PARAMETERIZATIONS[name].__name__})"
-        )
-    if not (isinstance(cls, type) and issubclass(cls, Parameterization)):
-        raise ValueError(f"cls must be a subclass of Parameterization, got {cls!r}")
-    PARAMETERIZATIONS[name] = cls
+    register(
+        PARAMETERIZATIONS,
+        name,
+        cls,
+        "parameterization",
+        lambda c: isinstance(c, type) and issubclass(c, Parameterization),
+    )
     return cls
 
 

@@ -81,3 +81,17 @@ def check_tensor(name: str, x: object) -> torch.Tensor:
     if not x.is_floating_point():
         raise TypeError(f"{name} must be a floating-point tensor, got {x.dtype}")
     return x
+
+
+def register(registry: dict, name: str, entry, kind: str, check=callable) -> None:
+    """Add ``entry`` to ``registry`` under ``name``, which must be a new non-empty string, and
+    ``entry`` must pass ``check``; errors name the ``kind`` of entry (a model, a planner...)."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty string, got {name!r}")
+    if name in registry:
+        raise ValueError(
+            f"name must be a new {kind} name, got {name!r} (taken: {sorted(registry)})"
+        )
+    if not check(entry):
+        raise ValueError(f"{kind} {name!r} is not a valid {kind}: got {entry!r}")
+    registry[name] = entry

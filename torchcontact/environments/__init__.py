@@ -11,6 +11,7 @@ import functools
 from torchcontact.environments.base import Environment
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV
+from torchcontact.validation import register
 
 ENVIRONMENTS: dict[str, Environment] = {
     env.name: env for env in (FINGERTIPS, TRIFINGER_ENV, ALLEGRO_ENV)
@@ -22,9 +23,7 @@ def register_environment(env: Environment) -> Environment:
     """Register ``env`` under ``env.name`` (which must be new); returns it."""
     if not isinstance(env, Environment):
         raise ValueError(f"env must be an Environment, got {type(env).__name__}")
-    if env.name in ENVIRONMENTS:
-        raise ValueError(f"env.name must be new, got {env.name!r} (taken: {list(ENVIRONMENTS)})")
-    ENVIRONMENTS[env.name] = env
+    register(ENVIRONMENTS, env.name, env, "environment", lambda e: True)
     return env
 
 
