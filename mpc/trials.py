@@ -32,10 +32,9 @@ from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
 from torchcontact.sim.plant import as_pose
 
-SCENES_VERSION = 8
+SCENES_VERSION = 7
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
-resumed sweep reruns trials from older versions (docs/journal.md lists what each changed; 8:
-the hands' MPC models the plant's object mass)."""
+resumed sweep reruns trials from older versions (docs/journal.md lists what each changed)."""
 
 DEFAULT_MODEL = "paper"
 """The contact model the MPC plans through unless told otherwise."""
@@ -46,6 +45,7 @@ with relaxed complementarity (the paper's implicit-MPC baseline). A learned K(q)
 with ``learned``."""
 
 LEGACY_DEFAULTS = {
+    "model": "complementarity_free",
     "learned": None,
     "memory": PAPER.memory,
     "horizon": PAPER.horizon,
@@ -58,6 +58,10 @@ LEGACY_DEFAULTS = {
     "cost": None,
 }
 """Values of configuration keys that records written before the key existed lack."""
+
+
+LEGACY_MODELS = {"complementarity_free": "paper", "qp": "relaxed_qp"}
+"""The models' names in records written before the MPC took ``contact_model`` names."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +127,7 @@ class TrialConfig:
     def matches(self, record: dict) -> bool:
         """Whether the saved ``record`` was made with this configuration."""
         stored = {k: record.get(k, LEGACY_DEFAULTS.get(k)) for k in asdict(self)}
+        stored["model"] = LEGACY_MODELS.get(stored["model"], stored["model"])
         if isinstance(stored["tips"], list):
             stored["tips"] = tuple(stored["tips"])
         return stored == asdict(self)
@@ -162,6 +167,7 @@ class TrialRecord:
         """The record of :meth:`to_dict` (its configuration completed by legacy defaults)."""
         names = [f.name for f in fields(TrialConfig)]
         config = {k: record.get(k, LEGACY_DEFAULTS.get(k)) for k in names}
+        config["model"] = LEGACY_MODELS.get(config["model"], config["model"])
         if config["tips"] is not None:
             config["tips"] = tuple(config["tips"])
         outcome = {f.name: record[f.name] for f in fields(cls) if f.name != "config"}

@@ -1,4 +1,4 @@
-"""Speed–accuracy trade-off of the contact models against MuJoCo (issue 6, model level).
+"""Speed–accuracy trade-off of the contact models against MuJoCo.
 
 For every (scene × setting) this measures the time per step of the model call and its one-step
 and H-step (H = 10) prediction errors against MuJoCo, then draws the Pareto fronts and states,

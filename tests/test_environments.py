@@ -12,6 +12,7 @@ import torch
 from torchcontact.environments import ENVIRONMENTS, environment, register_environment
 from torchcontact.environments.costs import PushingCost
 from torchcontact.environments.custom import PoseTask, from_mjcf
+from torchcontact.environments.hands import PAPER_OBJECT_MASS
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.environments.tasks import SuccessCriterion
 from torchcontact.frozen import FrozenComplementarityFree
@@ -19,6 +20,7 @@ from torchcontact.model import MODELS, ContactModel, contact_model, register_mod
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.planners import PLANNERS, PlannerResult, register_planner
 from torchcontact.mpc.trials import run_trial
+from torchcontact.sim.hands import HandEnv
 
 GRIPPER = Path(__file__).resolve().parents[1] / "examples" / "two_finger_gripper.xml"
 EAGER = MPCSettings(max_iter=10, compile=False)
@@ -51,15 +53,22 @@ def test_an_environments_mpc_plans_within_its_box(name):
     np.testing.assert_allclose(tips, np.asarray(expected), atol=1e-6)
 
 
-def test_the_model_takes_the_object_mass_from_the_plant():
-    env = environment("allegro")
-    heavy, light = env.make_plant("cube"), env.make_plant("foam_brick")
-    assert heavy.object.mass == pytest.approx(0.1) and light.object.mass == pytest.approx(0.01)
-    Q_heavy, b_heavy = env.system(heavy)(torch.zeros(16, dtype=torch.float64))
-    Q_light, b_light = env.system(light)(torch.zeros(16, dtype=torch.float64))
-    torch.testing.assert_close(Q_heavy[:6], 10 * Q_light[:6])
-    torch.testing.assert_close(b_heavy[2], 10 * b_light[2])
+def test_a_user_robots_model_takes_the_object_mass_from_the_plant():
+    env = _gripper()
+    light, heavy = env.make_plant("cube"), HandEnv(env.hand, "cube", mass=0.05)
+    Q_light, b_light = env.system(light)(torch.zeros(4, dtype=torch.float64))
+    Q_heavy, b_heavy = env.system(heavy)(torch.zeros(4, dtype=torch.float64))
+    torch.testing.assert_close(Q_heavy[:6], 5 * Q_light[:6])
+    torch.testing.assert_close(b_heavy[2], 5 * b_light[2])
     assert float(b_light[2]) == pytest.approx(-0.01 * 9.8)
+
+
+def test_the_paper_hands_model_a_ten_gram_object_whatever_the_plants():
+    env = environment("allegro")
+    heavy = env.make_plant("cube")
+    assert heavy.object.mass == pytest.approx(0.1)
+    _, b = env.system(heavy)(torch.zeros(16, dtype=torch.float64))
+    assert float(b[2]) == pytest.approx(-PAPER_OBJECT_MASS * 9.8)
 
 
 def _gripper(max_steps: int = 150):

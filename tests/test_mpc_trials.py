@@ -206,6 +206,20 @@ def test_records_written_before_the_solver_options_still_resume(tmp_path):
     assert seen == [(0, False)]
 
 
+def test_records_with_the_models_former_names_resume(tmp_path):
+    """Records name the paper's model "complementarity_free" from before ``contact_model``
+    names, and lacked the key before the model option existed: both are the paper model."""
+    _run([CONFIG], tmp_path)
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "model": "complementarity_free"}))
+    (resumed,), seen = _run([CONFIG], tmp_path)
+    assert seen == [(0, True)] and resumed.config.model == "paper"
+    _strip(tmp_path, CONFIG, ("model",))
+    _, seen = _run([CONFIG], tmp_path)
+    assert seen == [(0, True)]
+
+
 def test_records_of_older_scenes_are_run_again(tmp_path):
     """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ."""
     _run([CONFIG], tmp_path)

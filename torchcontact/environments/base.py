@@ -40,16 +40,20 @@ class ObjectModel:
 
     Attributes:
         metric: diagonal of εMₒ/h² (translation [N/m] ×3, rotation [N·m/rad] ×3) for a
-            :data:`REFERENCE_MASS` object; a plant's object of mass m gets it scaled by
+            :data:`REFERENCE_MASS` object; an object of mass m gets it scaled by
             m / :data:`REFERENCE_MASS`, and the weight m·g in b.
         robot_stiffness: Kᵣ of the quasi-dynamic robot.
+        mass: the mass [kg] the model gives the object; None: the plant's object's.
     """
 
     metric: tuple[float, ...]
     robot_stiffness: float
+    mass: float | None = None
 
-    def system(self, mass: float, n_robot: int) -> QuasiDynamic:
-        """The system of an object of ``mass`` [kg] and a robot of ``n_robot`` joints."""
+    def system(self, plant_mass: float, n_robot: int) -> QuasiDynamic:
+        """The system of a robot of ``n_robot`` joints and the object, whose mass is
+        :attr:`mass` or else ``plant_mass`` [kg]."""
+        mass = plant_mass if self.mass is None else self.mass
         scale = mass / REFERENCE_MASS
         return QuasiDynamic(
             object_metric=[value * scale for value in self.metric],
@@ -129,7 +133,8 @@ class Environment:
     # --- derived -------------------------------------------------------------------------
 
     def system(self, plant: Plant) -> QuasiDynamic:
-        """The quasi-dynamic system of ``plant``, with its object's mass."""
+        """The quasi-dynamic system of ``plant`` (with its object's mass, unless the
+        environment's model fixes one)."""
         n_robot = self.layout.nv - 6
         return self.object_model(plant).system(float(plant.object.mass), n_robot)
 

@@ -48,7 +48,7 @@ def height_bound_cost(tips: torch.Tensor, low: float, high: float) -> torch.Tens
 
 @dataclass(frozen=True)
 class ManipulationCost:
-    """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights (TASKS.md table).
+    """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights.
 
     c = contact·Σ‖p − tip‖² + grasp·‖Σ Rᵀd̂ᵢ‖² + control·‖u‖² (+ tilt·(1 − ⟨R(q)ẑ, R(q*)ẑ⟩));
     V = final·(position·‖p − p*‖² + orientation·(1 − ⟨q, q*⟩²)).

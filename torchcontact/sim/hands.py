@@ -50,7 +50,7 @@ class ObjectOverride:
 
 @dataclass(frozen=True)
 class Hand:
-    """A robot hand and the plant settings of its experiments (TASKS.md).
+    """A robot hand and the plant settings of its experiments (the paper's).
 
     The robot itself (its joints, fingertip sites and kinematics) is read from the MJCF
     ``asset``: :meth:`robot`, :attr:`n_joints`, :attr:`tips`.
