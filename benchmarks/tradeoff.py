@@ -3,6 +3,7 @@
     python benchmarks/tradeoff.py                      # both levels, every figure and table
     python benchmarks/tradeoff.py --level model [--quick --out /tmp/tradeoff]
     python benchmarks/tradeoff.py --level mpc [--env trifinger --trials 3 --workers 2]
+    python benchmarks/tradeoff.py --level mpc --backend ray [--address ADDR]  # on a cluster
 
 Model level (``studies.model_tradeoff``, ~7 min): one-step and 10-step prediction error
 against MuJoCo and time per step of every contact-model setting; writes tradeoff.csv/.json/.md

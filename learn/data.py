@@ -43,6 +43,7 @@ from tqdm.auto import tqdm
 from torchcontact.contacts import Contacts
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
+from torchcontact.parallel import parallel_map
 from torchcontact.results import atomic_write, read_json, write_json
 from torchcontact.systems import QuasiDynamic
 
@@ -176,6 +177,9 @@ def collect(
     noise: float | None = None,
     progress: bool = True,
     planner: Callable[[Scene], object] | None = None,
+    workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
 ) -> Path:
     """Collect trajectories ``0 … trajectories−1`` into ``directory``; returns the manifest.
 
@@ -200,7 +204,10 @@ def collect(
         progress: show a tqdm bar.
         planner: ``scene ↦`` what plans the MPC actions of a scene (e.g. the environment's
             :class:`~torchcontact.mpc.controller.ContactImplicitMPC`); required by ``"mpc"``
-            and ``"mixed"`` actions.
+            and ``"mixed"`` actions (picklable for more than one worker).
+        workers, backend, address: where trajectories run, as
+            :func:`~torchcontact.parallel.parallel_map` (``"local"`` processes or ``"ray"``
+            tasks); each is saved here as it arrives, the same as a serial run's.
     """
     if actions not in ACTIONS:
         raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
@@ -215,8 +222,6 @@ def collect(
     if actions != "random" and planner is None:
         raise ValueError(f"planner is required by actions={actions!r}")
     built = make_scene(scene, obj, task)
-    if planner is not None and actions != "random":
-        built.planner = planner(built)
     manifest = {
         "format": FORMAT,
         "version": VERSION,
@@ -236,21 +241,60 @@ def collect(
     else:
         write_json(path, manifest)
     done = {entry["id"] for entry in manifest["trajectories"]}
-    todo = [i for i in range(trajectories) if i not in done]
-    initial = trajectories - len(todo)
+    jobs = [
+        _CollectJob(scene, obj, built.task, _kind(actions, i), seed + i, steps, noise, planner, i)
+        for i in range(trajectories)
+        if i not in done
+    ]
+    _SCENES.clear()
+    _SCENES[scene, obj, built.task] = built  # the serial run reuses the manifest's scene
     with tqdm(
         total=trajectories,
-        initial=initial,
+        initial=trajectories - len(jobs),
         desc=f"{scene} {obj}",
         unit="traj",
         disable=not progress,
     ) as bar:
-        for index in todo:
-            kind = actions if actions != "mixed" else ("random", "mpc")[index % 2]
-            arrays = collect_trajectory(built, kind, seed + index, steps, noise)
-            _save_trajectory(directory, manifest, index, kind, arrays)
+        for index, arrays in parallel_map(_collect_job, jobs, workers, backend, address):
+            _save_trajectory(directory, manifest, jobs[index].index, jobs[index].kind, arrays)
             bar.update()
     return path
+
+
+def _kind(actions: str, index: int) -> str:
+    """The action source of trajectory ``index``: ``"mixed"`` alternates random and MPC."""
+    return actions if actions != "mixed" else ("random", "mpc")[index % 2]
+
+
+@dataclass(frozen=True)
+class _CollectJob:
+    """One trajectory to collect (picklable, for worker processes)."""
+
+    scene: str
+    obj: str
+    task: str
+    kind: str
+    seed: int
+    steps: int
+    noise: float | None
+    planner: Callable[[Scene], object] | None
+    index: int
+
+
+_SCENES: dict = {}  # per process: the scene of the last job, planner attached once needed
+
+
+def _collect_job(job: _CollectJob) -> dict:
+    """The arrays of ``job``'s trajectory, in a scene built once per process."""
+    torch.set_num_threads(1)
+    key = (job.scene, job.obj, job.task)
+    if key not in _SCENES:
+        _SCENES.clear()
+        _SCENES[key] = make_scene(job.scene, job.obj, job.task)
+    built = _SCENES[key]
+    if job.kind == "mpc" and built.planner is None:
+        built.planner = job.planner(built)
+    return collect_trajectory(built, job.kind, job.seed, job.steps, job.noise)
 
 
 def read_manifest(directory: str | Path) -> dict:

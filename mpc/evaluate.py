@@ -34,6 +34,7 @@ from torchcontact.mpc.trials import (
     run_trials,
     trial_configs,
 )
+from torchcontact.parallel import BACKENDS, RAY_EXTRA, import_ray
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
 from torchcontact.shapes import COLLISIONS
@@ -113,7 +114,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--dtype", choices=["float32", "float64"], default=None)
-    parser.add_argument("--workers", type=int, default=1, help="parallel trial processes")
+    parser.add_argument(
+        "--workers", type=int, default=1, help="parallel trial processes (or local Ray CPUs)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help=f"where trials run: local processes, or Ray tasks ({RAY_EXTRA})",
+    )
+    parser.add_argument(
+        "--address", default=None, help="(ray) a running cluster's address; default a local one"
+    )
     parser.add_argument("--out", type=Path, default=None, help="default results/VARIANT")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here too")
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
@@ -141,6 +153,13 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.address is not None and args.backend != "ray":
+        parser.error("--address is for --backend ray")
+    if args.backend == "ray":
+        try:
+            import_ray()
+        except ImportError as error:
+            parser.error(str(error))
     custom = args.env == CUSTOM
     if custom != (args.robot is not None):
         parser.error("--robot is required by, and only for, the custom environment")
@@ -263,6 +282,8 @@ def main(argv: list[str] | None = None) -> int:
         videos=videos,
         progress=not args.no_progress,
         on_record=lambda record, reused: tqdm.write(report.table_row(record.to_dict())),
+        backend=args.backend,
+        address=args.address,
     )
     summary = write_summary(args, [r.to_dict() for r in records], out)
     print_summary(summary, args.pairs)

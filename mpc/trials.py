@@ -13,7 +13,6 @@ simulate the applied control (MuJoCo); the three times are recorded separately.
 from __future__ import annotations
 
 import dataclasses
-import multiprocessing
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
@@ -28,6 +27,7 @@ from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ContactModel, RelaxedQP, contact_model
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.parallel import parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
 from torchcontact.sim.plant import as_pose
@@ -312,7 +312,8 @@ def _setup_key(config: TrialConfig) -> tuple:
 
 
 def _run_job(job: _Job) -> TrialRecord:
-    """Run ``job`` (reusing this process's plant and MPC when they match) and save it."""
+    """Run ``job``, reusing this process's plant and MPC when they match (so a worker builds
+    and compiles them once for all the trials it runs of one setup)."""
     torch.set_num_threads(1)
     key = _setup_key(job.config)
     if _CACHE.get("key") != key:
@@ -323,8 +324,6 @@ def _run_job(job: _Job) -> TrialRecord:
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
     frames = [] if job.video is not None else None
     record = run_trial(job.config, _CACHE["env"], _CACHE["plant"], _CACHE["mpc"], frames)
-    if job.path is not None:
-        write_json(job.path, record.to_dict())
     if frames:
         from torchcontact.mpc.report import save_gif
 
@@ -347,16 +346,20 @@ def run_trials(
     videos: Sequence[TrialConfig] = (),
     progress: bool = True,
     on_record: Callable[[TrialRecord, bool], None] | None = None,
+    backend: str = "local",
+    address: str | None = None,
 ) -> list[TrialRecord]:
-    """Run ``configs`` (in ``workers`` processes) and return their records in order.
+    """Run ``configs`` and return their records in order.
 
-    ``out``: a folder whose ``trials/`` holds one JSON record per trial, reused when it
-    matches its configuration (None: nothing written or reused); ``videos``: the configs
-    whose trial is also saved as ``out/NAME.gif``; ``on_record(record, reused)`` is called
-    as each record becomes available.
+    ``workers``: local processes, or the CPUs of a local Ray instance; ``backend``, ``address``:
+    where the trials run (:func:`~torchcontact.parallel.parallel_map`: ``"local"`` or
+    ``"ray"``, a cluster's address or None for a local instance). ``out``: a folder whose
+    ``trials/`` holds one JSON record per trial, written atomically here as each trial
+    finishes and reused when it matches its configuration (None: nothing written or reused);
+    ``videos``: the configs whose trial is also saved as ``out/NAME.gif`` (by the worker);
+    ``on_record(record, reused)`` is called as each record becomes available. A trial whose
+    Ray worker dies is run once more, with a warning.
     """
-    if not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     folder = None if out is None else Path(out)
     records: dict[TrialConfig, TrialRecord] = {}
     jobs = []
@@ -370,19 +373,21 @@ def run_trials(
             continue
         video = folder / f"{config.name}.gif" if folder and config in videos else None
         jobs.append(_Job(config, path, video))
-    bar = tqdm(total=len(jobs), desc="trials", disable=not progress)
-    pool = None
-    if workers > 1 and len(jobs) > 1:
-        pool = multiprocessing.get_context("spawn").Pool(min(workers, len(jobs)))
-    try:
-        for record in pool.imap_unordered(_run_job, jobs) if pool else map(_run_job, jobs):
+    finished = parallel_map(_run_job, jobs, workers, backend, address, on_retry=_warn_retry(jobs))
+    with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
+        for index, record in finished:
+            if jobs[index].path is not None:
+                write_json(jobs[index].path, record.to_dict())
             records[record.config] = record
             if on_record is not None:
                 on_record(record, False)
             bar.update()
-    finally:
-        bar.close()
-        if pool is not None:
-            pool.close()
-            pool.join()
     return [records[config] for config in configs]
+
+
+def _warn_retry(jobs: list[_Job]) -> Callable[[int, BaseException], None]:
+    def warn(index: int, error: BaseException) -> None:
+        name = jobs[index].config.name
+        tqdm.write(f"trial {name}: its worker died ({type(error).__name__}); running it again")
+
+    return warn

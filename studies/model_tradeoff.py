@@ -53,6 +53,7 @@ Run ``python benchmarks/tradeoff.py --help``.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import statistics
@@ -489,7 +490,7 @@ def hand_scene(name: str, data: Path, size: Size, progress: bool = True) -> Quas
         steps=size.hand_steps,
         actions=size.actions,
         progress=progress,
-        planner=lambda scene: collection_mpc(scene, compile=False),
+        planner=functools.partial(collection_mpc, compile=False),
     )
     transitions = load(directory, size.trajectories)
     meta = transitions.meta

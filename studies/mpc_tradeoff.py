@@ -30,6 +30,7 @@ from torchcontact.environments import environment
 from torchcontact.environments.presets import NAMES, PAPER, MPCSettings
 from torchcontact.mpc.report import summarize
 from torchcontact.mpc.trials import run_trials, trial_configs
+from torchcontact.parallel import BACKENDS
 from torchcontact.results import pareto_front, read_json
 
 PAIRS: dict[str, tuple[tuple[str, str], ...]] = {
@@ -77,15 +78,20 @@ def run_sweep(
     workers: int = 1,
     max_steps: int | None = None,
     progress: bool = True,
+    backend: str = "local",
+    address: str | None = None,
 ) -> dict[tuple[str, str], list[dict]]:
-    """Run every (environment, setting) not finished yet; returns their records by
-    (environment, label). Each setting's records resume from ``out/ENV/LABEL/trials``."""
+    """Run every (environment, setting) not finished yet (on ``backend``, see
+    :func:`~torchcontact.mpc.trials.run_trials`); returns their records by (environment,
+    label). Each setting's records resume from ``out/ENV/LABEL/trials``."""
     units = [(env, label) for env in envs for label in labels]
     records = {}
     for env, label in tqdm(units, desc="MPC settings", disable=not progress):
         configs = sweep_configs(env, label, trials, max_steps)
         folder = out / env / _folder(label)
-        done = run_trials(configs, workers=workers, out=folder, progress=False)
+        done = run_trials(
+            configs, workers, folder, progress=False, backend=backend, address=address
+        )
         records[env, label] = [record.to_dict() for record in done]
     return records
 
@@ -266,6 +272,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--trials", type=positive_int, default=TRIALS, help="seeds per pair")
     parser.add_argument("--workers", type=positive_int, default=1, help="parallel trial processes")
     parser.add_argument("--max-steps", type=positive_int, help="default: the task's")
+    parser.add_argument("--backend", choices=BACKENDS, default="local", help="local or ray")
+    parser.add_argument("--address", default=None, help="(ray) a running cluster's address")
     args = parser.parse_args(argv)
     unknown = [label for label in args.settings if label not in GRID]
     if unknown:
@@ -285,6 +293,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.workers,
         args.max_steps,
         not args.no_progress,
+        args.backend,
+        args.address,
     )
     rows = collect(args.out, args.env, args.settings, args.trials)
     paths = write_outputs(args.out, rows, args.trials)

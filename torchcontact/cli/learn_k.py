@@ -17,6 +17,7 @@ test windows; the combined error is the MPC's ``w_p‖p − p*‖² + w_q(1 − 
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 from dataclasses import asdict, fields
 from pathlib import Path
@@ -45,6 +46,7 @@ from torchcontact.learn.policies import ACTIONS
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.parallel import BACKENDS, RAY_EXTRA, import_ray
 from torchcontact.results import write_csv, write_json
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
@@ -73,6 +75,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     add("--noise", type=float, default=None, help="exploration noise, fraction of the bound")
     add("--no-compile", action="store_true", help="eager MPC while collecting")
+    add("--workers", type=int, default=1, help="parallel collection processes (or Ray CPUs)")
+    add("--backend", choices=BACKENDS, default="local", help=f"local or Ray ({RAY_EXTRA})")
+    add("--address", default=None, help="(ray) a running cluster's address")
     add("--data", type=Path, default=None, help="dataset directory (default under --out)")
     add("--stiffness", choices=STIFFNESS_KINDS, default="contact_network", help="K(q)")
     add("--damping", choices=DAMPING_KINDS, default="contact_network", help="D(q)")
@@ -97,10 +102,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--json", type=Path, default=None, help="write the headline figures here")
     add("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride")
+    positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride", "workers")
     for name in positive:
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.address is not None and args.backend != "ray":
+        parser.error("--address is for --backend ray")
+    if args.backend == "ray":
+        try:
+            import_ray()
+        except ImportError as error:
+            parser.error(str(error))
     if args.trajectories < 3:
         parser.error(f"--trajectories must be >= 3 (train, val, test), got {args.trajectories}")
     if args.seed < 0:
@@ -162,7 +174,10 @@ def run(args: argparse.Namespace) -> dict:
         task=args.task,
         noise=args.noise,
         progress=progress,
-        planner=lambda scene: collection_mpc(scene, compile=not args.no_compile),
+        planner=functools.partial(collection_mpc, compile=not args.no_compile),
+        workers=args.workers,
+        backend=args.backend,
+        address=args.address,
     )
     transitions = load(args.data, args.trajectories)
     meta = transitions.meta
