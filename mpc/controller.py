@@ -34,9 +34,9 @@ Fingertips = Callable[[torch.Tensor], torch.Tensor]
 
 CONTACT_BUCKET = 4
 """The MPC pads the detected contacts with inert slots to a multiple of this many: a compiled
-plan is specialised to its number of rows, and this way scenes of 13–16 slots (most of the
-Allegro's objects) share one compiled graph instead of compiling one each, a minute or more
-apiece. Padding rows are zero, so they change no velocity."""
+plan is specialised to its number of rows, so scenes of nearby slot counts share one compiled
+graph instead of compiling one each (a minute or more apiece). Padding rows are zero, so they
+change no velocity."""
 
 
 @dataclass(frozen=True)
@@ -214,7 +214,7 @@ class ContactImplicitMPC:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
 
         ``torch.func.grad`` rather than a recorded tape: one traced graph for value and
-        gradient, which ``torch.compile`` fuses (about 2× faster than compiling the tape).
+        gradient, which ``torch.compile`` fuses into a faster graph than a compiled tape.
         """
 
         def total(c):

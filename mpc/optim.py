@@ -39,11 +39,11 @@ ends when none is running or after ``max_iter`` rounds. Each round syncs with th
 per trial).
 
 Cost: a round's bookkeeping is one pure function of tensors, :func:`_step`, about 170 small
-torch calls for any B. On one CPU thread that is dispatch-bound, ≈ 0.4 ms per round eager
-and ≈ 0.2 ms with ``compile_steps=True`` (``benchmarks/lbfgs_overhead.py``); a round calls
-``fun`` once. With ``compile_fun=True`` as well, a traceable ``fun`` is compiled into the same
-graph as the bookkeeping, :data:`ROUNDS_PER_CALL` rounds per call, which is how the MPC runs:
-for small problems a compiled call's fixed cost outweighs its kernels.
+torch calls for any B, dispatch-bound on one CPU thread, which ``compile_steps=True`` compiles
+into one graph (``benchmarks/lbfgs_overhead.py`` times both); a round calls ``fun`` once.
+With ``compile_fun=True`` as well, a traceable ``fun`` is compiled into the same graph as the
+bookkeeping, :data:`ROUNDS_PER_CALL` rounds per call, which is how the MPC runs: for small
+problems a compiled call's fixed cost outweighs its kernels.
 """
 
 from __future__ import annotations
@@ -266,8 +266,8 @@ class _Bound(NamedTuple):
 ROUNDS_PER_CALL = 4
 """Rounds one compiled call runs with ``compile_fun``. A traced objective's tensors are tiny,
 so a call costs mostly its fixed overhead (guards, argument flattening, the host sync of
-the flags), which several rounds share: 4 rounds per call cut the fingertip MPC's solve by
-about a fifth against 1 (docs/journal.md, "Three-fingertip MPC"), at twice the compile time.
+the flags), which several rounds share; 4 chosen by measurement, at a longer compile time
+(see docs/journal.md, "Three-fingertip MPC").
 A problem that stops within a call stays frozen for the call's remaining rounds (the iterates
 are those of one round per call); the call's ``budget`` stops every problem after ``max_iter``
 rounds."""
@@ -304,12 +304,11 @@ def _evaluate(fun: Callable, args: tuple, x: torch.Tensor) -> tuple[torch.Tensor
 TRACED_FUN_OPTIONS = {"cpp_wrapper": True, "post_grad_fusion_options": {"decompose_mm_pass": {}}}
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
-(buffer allocation and views, about a hundred of each) than in its kernels; a C++ wrapper
-cuts the fingertip MPC's round by about a quarter (docs/journal.md, "Three-fingertip MPC"), at
-a longer first compilation (cached on disk like the rest). Inductor's
-``decompose_mm_pass`` writes small matrix products as pointwise products and sums, which fuse
-with their neighbours, instead of external BLAS calls of a few µs each: pytorch-kinematics'
-4×4 transforms are about 70 such calls per TriFinger round (:data:`SMALL_PRODUCTS`)."""
+(buffer allocation and views) than in its kernels; a C++ wrapper makes the round cheaper
+(measured, see docs/journal.md, "Three-fingertip MPC"), at a longer first compilation (cached
+on disk like the rest). Inductor's ``decompose_mm_pass`` writes small matrix products as
+pointwise products and sums, which fuse with their neighbours, instead of external BLAS calls
+of a few µs each, such as pytorch-kinematics' 4×4 transforms (:data:`SMALL_PRODUCTS`)."""
 
 SMALL_PRODUCTS = {
     "cpu_max_first_dimension_decomposition": 4096,

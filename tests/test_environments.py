@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from torchcontact.environments import ENVIRONMENTS, environment, register_environment
+from torchcontact.environments import (
+    ENVIRONMENTS,
+    Environment,
+    environment,
+    register_environment,
+)
 from torchcontact.environments.costs import PushingCost
 from torchcontact.environments.custom import PoseTask, from_mjcf
 from torchcontact.environments.hands import PAPER_OBJECT_MASS
@@ -84,6 +89,7 @@ def _gripper(max_steps: int = 150):
 
 def test_a_user_robot_from_its_mjcf_pushes_a_cube_to_its_target_closed_loop():
     env = _gripper()
+    assert isinstance(Environment.from_mjcf(GRIPPER), type(env))
     assert env.layout.joints == ("free", "slide", "slide", "slide", "slide")
     assert env.hand.tips == ("left_tip", "right_tip")
     plant = env.make_plant("cube")

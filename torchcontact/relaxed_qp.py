@@ -22,8 +22,8 @@ with s, β > 0 (an infeasible start), aims each step at ``β∘s = max(κ, σ·m
 (σ = :data:`CENTERING`), so that it follows the central path down to κ and then converges
 quadratically to the relaxed point, and keeps s, β > 0 by the fraction-to-boundary rule.
 Eliminating s and β leaves one ``(nv, nv)`` SPD system per step, ``(h²Q + J̃ᵀ diag(β/s) J̃)
-dv = ·``, solved by a batched Cholesky factorization. A plain path-following step was kept over
-Mehrotra's predictor–corrector, which saved 0–15 % of the iterations here at two solves each.
+dv = ·``, solved by a batched Cholesky factorization. The step is plain path-following, not
+Mehrotra's predictor–corrector, whose second solve per step costs more than it saves here.
 
 Backward: the implicit function theorem, as one differentiable Newton step from the detached
 solution z* = (v*, s*, β*): ``z = z* − J_F(z*)⁻¹ F(z*; θ)`` with the Jacobian J_F held constant
@@ -221,8 +221,8 @@ class _Problem:
 
         s = max(gap, 0) + margin, the margin being the largest |gap| of a live row (dropped
         rows sit at gap 1 and would set the scale); β = μ₀/s with μ₀ = max(κ, margin·β̄) and
-        β̄ = |hb|∞/|J̃|∞ the size of the impulses that can balance hb. Scaling μ₀ so saved a
-        quarter of the iterations over μ₀ = margin² on contact problems.
+        β̄ = |hb|∞/|J̃|∞ the size of the impulses that can balance hb, which starts β at the
+        scale of the solution's impulses.
         """
         gap = _matvec(self.jac, v) + self.phi / self.h
         live = self.jac.abs().amax(-1) > 0

@@ -28,7 +28,7 @@ PAPER_STIFFNESS = 1.0
 
 STIFFNESS = 4.64
 """The default K: ``torchcontact learn-k --scene fingertips --object cube``'s best constant K
-on the cube's MPC rollouts (10-step error 0.066 against 0.084 with the paper's K = 1)."""
+on the cube's MPC rollouts, chosen by measurement (docs/journal.md, "Three-fingertip MPC")."""
 
 PRESETS = {
     "fast": MPCSettings(max_iter=5),

@@ -24,9 +24,8 @@ HAND_METRIC = (50.0, 50.0, 50.0, 0.1, 0.1, 0.1)
 
 PAPER_OBJECT_MASS = 0.01
 """[kg] The object mass of the paper's hand models, whatever the plant's object weighs. Kept for
-the built-in hands, by measurement: modelling the Allegro's 100 g cube and stick at their own
-mass (metric and weight ×10) with the paper's K turned 16 and 2 of 20 instead of 19 and 15
-(seeds 0–19, docs/journal.md); a heavier modelled object needs its K chosen with it."""
+the built-in hands by measurement (docs/journal.md, "Library structure"): a heavier modelled
+object needs its K chosen with it."""
 
 
 def tips_before_sliding(obj: ObjectMesh, mu: float = MODEL_FRICTION) -> bool:
@@ -147,7 +146,8 @@ TRIFINGER_PRESETS = {
 """TriFinger's solver presets on its measured front (README "Choosing settings")."""
 
 ALLEGRO_PRESETS = {**TRIFINGER_PRESETS, "balanced": MPCSettings(dtype="float32")}
-"""The Allegro was not swept: TriFinger's presets, ``balanced`` the paper's in float32."""
+"""The Allegro's presets: TriFinger's, ``balanced`` the paper's in float32 (the Allegro was not
+in the MPC-level trade-off sweep)."""
 
 TRIFINGER_ENV = HandEnvironment(
     TRIFINGER,
@@ -174,7 +174,7 @@ ALLEGRO_ENV = HandEnvironment(
         stiffness=0.5,
         control_bound=0.2,
         # position weight 300, not the paper's 100: success counts orientation only, and with
-        # 100 the MPC turned objects off the palm (docs/journal.md)
+        # 100 the MPC turned objects off the palm (docs/journal.md, "TriFinger and Allegro MPC")
         cost=ManipulationCost(contact=1.0, grasp=0.0, control=0.1, position=300.0),
         object_mass=PAPER_OBJECT_MASS,
     ),

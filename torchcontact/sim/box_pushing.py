@@ -9,15 +9,14 @@ The CF-vs-QP timing experiment (``studies/box_pushing.py``) and data collection
 Scene choices (:class:`BoxPushingConfig`): 5 cm cubes of 1 g, 1 cm apart, μ = 0.5, detection
 margin 5 mm, the exact ``max(·, 0)`` in the CF model. K = 1 N/m acts per row, so the cube mass
 decides how the contacts behave: the explicit CF update is stable only when
-``K·λmax(J̃Q⁻¹J̃ᵀ) < 2`` with ``Q = εM/h²``; for a resting cube the stiffest (tilting) mode gives
-2.9 at 0.3 g (the cube then rocks with period 2), 1.9 at 0.6 g and 0.9–1.2 at 1 g (on the
-ground, in the row). Heavier cubes sink: 0.1 kg would rest 6 cm deep, and 20 of them would
-outweigh the bar's ``Kᵣ|u| = 0.5 N`` in friction. The softplus of the paper's MPC (γ = 100)
-gives every row a floor of ``log 2/γ ≈ 7 mN``, enough to lift 1 g cubes off the ground, hence
-the exact max. The price of one K for every row: a resting cube sits 0.5 mm deep
-(``φ = gh²/ε − mg/(16K)``), and the bar's push crosses each face pair through only 16 rows, so
-the bar sinks 4 mm into a single cube and up to 2.5 cm into a row of 10–20, where the QP does
-not penetrate.
+``K·λmax(J̃Q⁻¹J̃ᵀ) < 2`` with ``Q = εM/h²``, which a resting 1 g cube's stiffest (tilting) mode
+meets (0.9–1.2) and much lighter cubes break (they rock with period 2). Heavier cubes sink:
+0.1 kg would rest 6 cm deep, and 20 of them would outweigh the bar's ``Kᵣ|u| = 0.5 N`` in
+friction. The softplus of the paper's MPC (γ = 100) gives every row a floor of
+``log 2/γ ≈ 7 mN``, enough to lift 1 g cubes off the ground, hence the exact max. The price of
+one K for every row: a resting cube sits 0.5 mm deep (``φ = gh²/ε − mg/(16K)``), and the bar's
+push crosses each face pair through only 16 rows, so the bar sinks 4 mm into a single cube and
+up to 2.5 cm into a row of 10–20, where the QP does not penetrate.
 
 The plant (:class:`BoxPushingPlant`) runs the same MJCF at a MuJoCo time step of
 ``h/substeps``, every geom's sliding friction set to μ. One :meth:`BoxPushingPlant.step` is one
@@ -68,8 +67,8 @@ class BoxPushingConfig:
         gamma: softplus sharpness of the CF model; None for the exact ``max(·, 0)``.
         facets: friction-cone facets per contact.
         qp_settings: OSQP settings of the QP baseline, over the library's
-            (:data:`torchcontact.qp.OSQP_SETTINGS`). 1e-10 ends in "solved inaccurate" at
-            10 cubes; 1e-6 keeps v⁺ within ~2e-4 m/s of the 1e-10 solution.
+            (:data:`torchcontact.qp.OSQP_SETTINGS`): tolerances 1e-6, as much tighter ones
+            end in "solved inaccurate" at 10 cubes.
         warmup: first steps of each rollout left out of the timing medians.
     """
 

@@ -175,8 +175,8 @@ TRIFINGER = Hand(
     ground_friction=0.5,
     camera_position=(0.0, -0.45, 0.45),
     object_overrides={"cube": ObjectOverride(ground_friction=0.9)},
-    # tips hovering just off an object left the MPC without rows to push with: with 5 mm the
-    # learned-K sweep's final errors fell from 10.4 mm / 11.2° to 7.1 mm / 7.8° (docs/journal.md)
+    # tips hovering just off an object left the MPC without rows to push with; 5 mm chosen by
+    # measurement (docs/journal.md, "TriFinger and Allegro MPC")
     contact_margin=0.005,
     tip_sites=("tip0", "tip1", "tip2"),  # the file's sites are tip0..tip2, not named *tip
 )
@@ -211,9 +211,9 @@ ALLEGRO = Hand(
     camera_position=(0.0, -0.3, 0.3),
     elliptic=True,
     impratio=10.0,
-    # contact_margin stays 0: under the paper's soft K = 0.5 a row 5 mm off carries 83 % of a
-    # touching row's force, so hovering links push the modelled object (5 mm: 72.6 %,
-    # docs/journal.md)
+    # contact_margin stays 0: under the paper's soft K = 0.5 a row's force falls off over
+    # 1/(γK) = 2 cm, so hovering links would push the modelled object (docs/journal.md,
+    # "TriFinger and Allegro MPC")
     # the reference scenes: a heavier cube and stick, binoculars with friction 0.9, and three
     # meshes scaled smaller than on the TriFinger (whose scale the listed sizes are)
     object_overrides={
