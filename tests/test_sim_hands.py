@@ -168,7 +168,7 @@ def test_a_user_mesh_is_scaled_and_placed(tmp_path):
     trimesh.creation.box([2.0, 1.0, 0.5]).export(path)
     env = HandEnv("trifinger", path, object_size=0.08)
     np.testing.assert_allclose(env.object.size, [0.08, 0.04, 0.02], rtol=1e-6)
-    assert env.object.name == "box"
+    assert env.object.name == "mesh_box"  # apart from the built-in names
 
 
 def test_bad_arguments_are_named():

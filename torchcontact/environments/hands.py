@@ -13,7 +13,7 @@ import torch
 
 from torchcontact.environments import tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, ObjectModel
-from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.shapes import ObjectMesh, object_names
@@ -42,8 +42,8 @@ class HandModel:
         robot_stiffness: Kᵣ of the quasi-dynamic robot.
         stiffness: the paper's K.
         control_bound: |u| per joint and step [rad].
-        cost: the cost weights.
-        metric: εMₒ/h² of a 10 g object (scaled by the plant's object mass).
+        cost: the cost (its ``tilt`` is set where :attr:`tilt` applies).
+        metric: εMₒ/h² of a 10 g object (scaled by the modelled object's mass).
         h: the model's time step [s].
         tilt: weight of the cost's tilt term for objects that tip before they slide
             (:func:`tips_before_sliding`); 0 leaves every object without.
@@ -53,7 +53,7 @@ class HandModel:
     robot_stiffness: float
     stiffness: float
     control_bound: float
-    cost: ManipulationCost
+    cost: Cost
     metric: tuple[float, ...] = HAND_METRIC
     h: float = 0.1
     tilt: float = 0.0
@@ -111,7 +111,7 @@ class HandEnvironment(Environment):
     def control_bound(self, plant: HandEnv) -> float:
         return self.model.control_bound
 
-    def cost(self, plant: HandEnv) -> ManipulationCost:
+    def cost(self, plant: HandEnv) -> Cost:
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
             return dataclasses.replace(self.model.cost, tilt=self.model.tilt)
         return self.model.cost

@@ -140,7 +140,9 @@ def resolve_object(
         return make_object(obj, mass=mass, size=size, collision=collision)
     if isinstance(obj, (str, Path)) and Path(obj).suffix:
         decomposition = "hull" if collision == "hull" else "auto"
-        return load_object(obj, object_size, mass=mass, decomposition=decomposition)
+        # named apart from the built-in objects, whose names key the paper's per-object settings
+        name = f"mesh_{Path(obj).stem}"
+        return load_object(obj, object_size, mass=mass, decomposition=decomposition, name=name)
     raise ValueError(
         f"obj must be an object name among {tuple(OBJECT_SIZES)}, a mesh path or an "
         f"ObjectMesh, got {obj!r}"
