@@ -26,10 +26,14 @@ from studies import model_tradeoff as model_level  # noqa: E402
 from studies import mpc_tradeoff as mpc_level  # noqa: E402
 
 LEVELS = {"model": model_level.main, "mpc": mpc_level.main}
+USAGE = "python benchmarks/tradeoff.py [--level {model,mpc} [LEVEL OPTIONS, --help]]"
 
 
 def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
+    if argv[:1] in (["-h"], ["--help"]):
+        print(f"usage: {USAGE}\n\n{__doc__.strip()}")
+        return 0
     if argv[:1] != ["--level"]:
         if argv:
             raise SystemExit(f"usage: {__doc__.strip().splitlines()[2].strip()} (got {argv})")

@@ -31,6 +31,8 @@ when a file is truncated, corrupted or does not match its manifest.
 from __future__ import annotations
 
 import json
+import math
+import numbers
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -43,7 +45,7 @@ from tqdm.auto import tqdm
 from torchcontact.contacts import Contacts
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
-from torchcontact.parallel import parallel_map
+from torchcontact.parallel import BACKENDS, parallel_map
 from torchcontact.results import atomic_write, read_json, write_json
 from torchcontact.systems import QuasiDynamic
 
@@ -53,6 +55,8 @@ MANIFEST = "manifest.json"
 
 STATE_ARRAYS = ("q", "u", "q_next")
 CONTACT_ARRAYS = ("phi", "jac_normal", "jac_tangent", "mu", "active", "frame", "position")
+FINITE_ARRAYS = ("q", "u", "q_next", "phi", "jac_normal", "jac_tangent", "mu")
+"""Arrays that must hold finite numbers only (the model reads them)."""
 REQUIRED = (
     *("format", "version", "scene", "object", "task", "actions", "steps", "seed"),
     *("h", "gamma", "facets", "paper_stiffness", "joints", "pose_weights", "system"),
@@ -209,32 +213,11 @@ def collect(
             :func:`~torchcontact.parallel.parallel_map` (``"local"`` processes or ``"ray"``
             tasks); each is saved here as it arrives, the same as a serial run's.
     """
-    if actions not in ACTIONS:
-        raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
-    if scene == BOX_PUSHING and actions != "random":
-        raise ValueError(f"box_pushing has no MPC task: actions must be 'random', got {actions!r}")
-    for name, value in (("trajectories", trajectories), ("steps", steps)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    _check_collect(scene, trajectories, steps, actions, seed, noise, planner)
+    _check_workers(workers, backend, address)
     directory = Path(directory)
-    if actions != "random" and planner is None:
-        raise ValueError(f"planner is required by actions={actions!r}")
     built = make_scene(scene, obj, task)
-    manifest = {
-        "format": FORMAT,
-        "version": VERSION,
-        "scene": scene,
-        "object": obj,
-        "task": built.task,
-        "actions": actions,
-        "noise": noise,
-        "steps": steps,
-        "seed": seed,
-        **scene_header(built),
-        "trajectories": [],
-    }
+    manifest = _new_manifest(built, scene, obj, actions, noise, steps, seed)
     path = directory / MANIFEST
     if path.exists():
         manifest["trajectories"] = _resume(path, manifest)
@@ -259,6 +242,54 @@ def collect(
             _save_trajectory(directory, manifest, jobs[index].index, jobs[index].kind, arrays)
             bar.update()
     return path
+
+
+def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, seed: int):
+    """The manifest of a dataset of ``built`` without trajectories (see the module docstring)."""
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "scene": scene,
+        "object": obj,
+        "task": built.task,
+        "actions": actions,
+        "noise": noise,
+        "steps": steps,
+        "seed": seed,
+        **scene_header(built),
+        "trajectories": [],
+    }
+
+
+def _check_collect(scene, trajectories, steps, actions, seed, noise, planner) -> None:
+    """``ValueError`` naming the first argument of :func:`collect` that is out of range."""
+    if actions not in ACTIONS:
+        raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
+    if scene == BOX_PUSHING and actions != "random":
+        raise ValueError(f"box_pushing has no MPC task: actions must be 'random', got {actions!r}")
+    for name, value in (("trajectories", trajectories), ("steps", steps)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if noise is not None and (
+        isinstance(noise, bool)
+        or not isinstance(noise, numbers.Real)
+        or not (math.isfinite(noise) and noise >= 0)
+    ):
+        raise ValueError(f"noise must be a non-negative finite number or None, got {noise!r}")
+    if actions != "random" and planner is None:
+        raise ValueError(f"planner is required by actions={actions!r}")
+
+
+def _check_workers(workers, backend: str, address: str | None) -> None:
+    """The checks of :func:`~torchcontact.parallel.parallel_map`, made before anything runs."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if address is not None and backend != "ray":
+        raise ValueError(f"address is for backend='ray', got backend={backend!r}")
 
 
 def _kind(actions: str, index: int) -> str:
@@ -383,6 +414,8 @@ def read_trajectory(directory: str | Path, manifest: dict, entry: dict) -> dict[
                     f"(manifest nq, nv, nu, slots = {manifest['nq']}, {manifest['nv']}, "
                     f"{manifest['nu']}, {manifest['slots']}), found {value.dtype} {value.shape}"
                 )
+            if key in FINITE_ARRAYS and not np.isfinite(value).all():
+                raise DataFormatError(f"{path}: array {key!r} holds NaN or Inf values")
             arrays[key] = value
     return arrays
 

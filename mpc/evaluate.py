@@ -20,6 +20,8 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
+from torchcontact.checkpoint import load_checkpoint
+from torchcontact.cli import writable_directory, writable_file
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
@@ -37,7 +39,7 @@ from torchcontact.mpc.trials import (
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, import_ray
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
-from torchcontact.shapes import COLLISIONS
+from torchcontact.shapes import COLLISIONS, load_object
 
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
@@ -136,9 +138,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Reject option combinations that mean nothing, naming the option."""
     qp = args.model == "relaxed_qp"
-    if args.stiffness is not None and (qp or not args.stiffness > 0):
+    if args.stiffness is not None and (qp or not 0 < args.stiffness < math.inf):
         parser.error(
-            f"--stiffness must be positive and is for the paper model, got {args.stiffness}"
+            f"--stiffness must be positive and finite and is for the paper model, "
+            f"got {args.stiffness}"
         )
     if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
         parser.error(f"--relaxation must be positive and is for relaxed_qp, got {args.relaxation}")
@@ -177,7 +180,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
         env = environment(args.env, args.robot, args.tips)
-        args.pairs = env.select(args.task, args.object)
+        # a mesh file by its absolute path: one record name however it was typed
+        args.pairs = [
+            (task, obj if obj in env.objects else str(Path(obj).resolve()))
+            for task, obj in env.select(args.task, args.object)
+        ]
     except ValueError as error:
         parser.error(str(error))
     overrides = {
@@ -199,7 +206,23 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     elif args.stiffness is None:
         args.stiffness = env.default_stiffness
     args.env_description = env
+    _load_inputs(args, env)
     return args
+
+
+def _load_inputs(args: argparse.Namespace, env) -> None:
+    """Read the checkpoint of ``--learned`` and each mesh file of ``--object`` once, before any
+    trial: ``ValueError`` naming the option when one is not what it should be."""
+    if args.learned is not None:
+        try:
+            load_checkpoint(args.learned)
+        except ValueError as error:
+            raise ValueError(f"--learned: {error}") from None
+    for obj in sorted({obj for _, obj in args.pairs if obj not in env.objects}):
+        try:
+            load_object(obj, 0.1, decomposition="hull")
+        except ValueError as error:
+            raise ValueError(f"--object {obj!r} must be a usable mesh file: {error}") from None
 
 
 def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
@@ -273,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     configs = configs_of(args)
     out = Path("results") / configs[0].variant if args.out is None else args.out
     videos = [c for c in configs if c.seed == 0] if args.video else []
+    writable_directory("--out", out)
+    if args.json is not None:
+        writable_file("--json", args.json)
     print(f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}")
     print(report.TABLE_HEADER)
     records = run_trials(

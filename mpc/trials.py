@@ -3,8 +3,20 @@
 ``run_trials(configs, workers=2, out="results/trifinger")`` runs each :class:`TrialConfig` in
 MuJoCo under the MPC it names, writes each finished :class:`TrialRecord` atomically to
 ``out/trials/NAME.json`` and reuses a record already there when it was made with the same
-configuration, so an interrupted sweep resumes where it stopped. A trial depends only on its
-configuration, so a parallel run's records equal a serial run's (timings aside).
+configuration and inputs, so an interrupted sweep resumes where it stopped. A trial depends only
+on its configuration and inputs, so a parallel run's records equal a serial run's (timings
+aside).
+
+A record's identity is its :class:`TrialConfig` plus its ``inputs`` (:func:`trial_inputs`: the
+SHA-256 of the object mesh, learned checkpoint and robot MJCF files it names, and the versions of
+torchcontact, torch and mujoco). On resume, a record at a trial's path is reused when its
+identity equals the trial's; set aside (renamed ``NAME.corrupt-<n>.json``, with a warning) and
+run again when it is not a readable record; set aside (``NAME.stale-<n>.json``) and run again
+when it differs only in :data:`RELEASE_FIELDS` (an older release of our scenes or of a library);
+and any other difference refuses the whole run before a trial runs (:class:`RecordMismatch`): a
+run never overwrites a record made with other settings or inputs. A record without ``inputs``
+(written before them) counts as made with the current inputs when it names no file, and as one of
+an older release when it does.
 
 Per control step: detect contacts at the real state (MuJoCo), solve the MPC (torch), and
 simulate the applied control (MuJoCo); the three times are recorded separately.
@@ -13,6 +25,11 @@ simulate the applied control (MuJoCo); the three times are recorded separately.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
+import importlib.metadata
+import json
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
@@ -62,6 +79,62 @@ LEGACY_DEFAULTS = {
 
 LEGACY_MODELS = {"complementarity_free": "paper", "qp": "relaxed_qp"}
 """The models' names in records written before the MPC took ``contact_model`` names."""
+
+INPUT_FILES = {"object_sha256": "object", "learned_sha256": "learned", "robot_sha256": "robot"}
+"""Keys of a record's ``inputs`` holding the SHA-256 of the file a configuration field names
+(None where it names none: a built-in object, no learned model, a built-in robot)."""
+
+VERSION_KEYS = ("torchcontact", "torch", "mujoco")
+"""Libraries whose versions a record's ``inputs`` holds."""
+
+RELEASE_FIELDS = ("scenes", "inputs", *(f"inputs.{key}" for key in VERSION_KEYS))
+"""Identity fields that change with a release of ours or of a library, not with what the user
+asked (``inputs``: a record naming files but written before inputs were recorded). A record
+differing only in these is set aside and run again; any other difference refuses the run."""
+
+FINITE_KEYS = (
+    "pos_err_mm",
+    "quat_err",
+    "angle_err_deg",
+    "initial_pose",
+    "target_pose",
+    "aim_pose",
+    "final_pose",
+)
+"""Record values that must be finite: a record holding a non-finite one is never written and
+counts as corrupt on reading."""
+
+
+class RecordMismatch(ValueError):
+    """A saved record at a trial's path was made with other settings or inputs than the run's."""
+
+
+def is_mesh_file(obj: str) -> bool:
+    """Whether a trial's ``object`` is a mesh file path (built-in object names have no suffix,
+    as :meth:`~torchcontact.environments.base.Environment.select` tells them apart)."""
+    return bool(Path(obj).suffix)
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 hex digest (64 characters) of the content of the file at ``path``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@functools.cache
+def library_versions() -> dict[str, str]:
+    """The versions of :data:`VERSION_KEYS` in this process (``"unknown"`` for torchcontact
+    when it is not installed as a distribution)."""
+    import mujoco
+
+    try:
+        ours = importlib.metadata.version("torchcontact")
+    except importlib.metadata.PackageNotFoundError:
+        ours = "unknown"
+    return {"torchcontact": ours, "torch": torch.__version__, "mujoco": mujoco.__version__}
 
 
 @dataclass(frozen=True)
@@ -120,17 +193,29 @@ class TrialConfig:
 
     @property
     def name(self) -> str:
-        """File stem of the record: ``trifinger_in-hand_cube_seed3`` (a mesh path contributes
-        its file stem)."""
-        return f"{self.variant}_{self.task}_{Path(self.object).stem}_seed{self.seed}"
+        """File stem of the record: ``trifinger_in-hand_cube_seed3``; a mesh path contributes
+        its file stem, ``-mesh-`` and 8 hex digits of the SHA-256 of the path as given
+        (``trifinger_in-hand_cube-mesh-1a2b3c4d_seed3``), so it never names a built-in object's
+        record nor another folder's mesh of the same file name."""
+        obj = self.object
+        if is_mesh_file(obj):
+            obj = f"{Path(obj).stem}-mesh-{hashlib.sha256(obj.encode()).hexdigest()[:8]}"
+        return f"{self.variant}_{self.task}_{obj}_seed{self.seed}"
 
     def matches(self, record: dict) -> bool:
-        """Whether the saved ``record`` was made with this configuration."""
-        stored = {k: record.get(k, LEGACY_DEFAULTS.get(k)) for k in asdict(self)}
+        """Whether the saved ``record`` was made with this configuration (inputs aside)."""
+        return stored_config(record) == asdict(self)
+
+
+def stored_config(record: dict) -> dict:
+    """The :class:`TrialConfig` fields of a saved ``record``, completed by
+    :data:`LEGACY_DEFAULTS` and :data:`LEGACY_MODELS` (``tips`` as a tuple)."""
+    stored = {f.name: record.get(f.name, LEGACY_DEFAULTS.get(f.name)) for f in fields(TrialConfig)}
+    if isinstance(stored["model"], str):
         stored["model"] = LEGACY_MODELS.get(stored["model"], stored["model"])
-        if isinstance(stored["tips"], list):
-            stored["tips"] = tuple(stored["tips"])
-        return stored == asdict(self)
+    if isinstance(stored["tips"], list):
+        stored["tips"] = tuple(stored["tips"])
+    return stored
 
 
 @dataclass(frozen=True)
@@ -156,6 +241,7 @@ class TrialRecord:
     contacts_found_mean: float
     contacts_found_max: int
     steps_with_dropped_contacts: int
+    inputs: dict | None = None
 
     def to_dict(self) -> dict:
         """The JSON-able record: the configuration's fields, then the outcome's."""
@@ -164,14 +250,12 @@ class TrialRecord:
 
     @classmethod
     def from_dict(cls, record: dict) -> TrialRecord:
-        """The record of :meth:`to_dict` (its configuration completed by legacy defaults)."""
-        names = [f.name for f in fields(TrialConfig)]
-        config = {k: record.get(k, LEGACY_DEFAULTS.get(k)) for k in names}
-        config["model"] = LEGACY_MODELS.get(config["model"], config["model"])
-        if config["tips"] is not None:
-            config["tips"] = tuple(config["tips"])
-        outcome = {f.name: record[f.name] for f in fields(cls) if f.name != "config"}
-        return cls(config=TrialConfig(**config), **outcome)
+        """The record of :meth:`to_dict` (its configuration completed by legacy defaults; no
+        ``inputs`` in records written before them)."""
+        names = [f.name for f in fields(cls) if f.name not in ("config", "inputs")]
+        outcome = {name: record[name] for name in names}
+        config = TrialConfig(**stored_config(record))
+        return cls(config=config, inputs=record.get("inputs"), **outcome)
 
 
 def trial_configs(
@@ -209,6 +293,28 @@ def trial_configs(
     ]
 
 
+def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
+    """The identity of ``config``'s inputs, stored as a record's ``inputs``: for each key of
+    :data:`INPUT_FILES` the SHA-256 of the file its field names (None where none), and the
+    versions of :data:`VERSION_KEYS`. ``hashes`` (resolved path → digest) caches the digests
+    across calls and is filled here. Raises ``ValueError`` naming the field when its file is
+    missing."""
+    hashes = {} if hashes is None else hashes
+    inputs = {}
+    for key, field in INPUT_FILES.items():
+        path = getattr(config, field)
+        if path is None or (field == "object" and not is_mesh_file(path)):
+            inputs[key] = None
+            continue
+        if not Path(path).is_file():
+            raise ValueError(f"{field} must be an existing file, got {path!r} ({config.name})")
+        resolved = str(Path(path).resolve())
+        if resolved not in hashes:
+            hashes[resolved] = file_sha256(resolved)
+        inputs[key] = hashes[resolved]
+    return {**inputs, **library_versions()}
+
+
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
     """The contact model of ``config`` for a model step ``h`` [s]."""
     if config.learned is not None:
@@ -241,9 +347,13 @@ def run_trial(
     mpc: ContactImplicitMPC,
     frames: list | None = None,
     frame_every: int = 5,
+    inputs: dict | None = None,
 ) -> TrialRecord:
     """Run one trial to success or ``config.max_steps``; ``frames`` collects rendered RGB
-    frames every ``frame_every`` steps when given."""
+    frames every ``frame_every`` steps when given; ``inputs``: the record's (default
+    :func:`trial_inputs` of ``config``). Raises ``ValueError`` naming the trial when a value of
+    :data:`FINITE_KEYS` comes out non-finite (no record of it is made)."""
+    inputs = trial_inputs(config) if inputs is None else inputs
     initial, target = env.sample(plant, config.task, config.seed)
     # the poses as the plant takes them (quaternions normalised), recorded and judged so
     initial, target = as_pose("initial", initial), as_pose("target", target)
@@ -273,7 +383,7 @@ def run_trial(
             break
     final = plant.state()[:7]
     slots = plant.detector.slots
-    return TrialRecord(
+    record = TrialRecord(
         config=config,
         success=bool(tracker.succeeded),
         steps=step + 1,
@@ -290,8 +400,15 @@ def run_trial(
         contacts_found_mean=float(np.mean(found)),
         contacts_found_max=max(found),
         steps_with_dropped_contacts=sum(n > slots for n in found),
+        inputs=inputs,
         **times,
     )
+    bad = [key for key in FINITE_KEYS if not np.all(np.isfinite(getattr(record, key)))]
+    if bad:
+        raise ValueError(
+            f"trial {config.name} ended with non-finite {', '.join(bad)}; no record written"
+        )
+    return record
 
 
 @dataclass(frozen=True)
@@ -301,6 +418,7 @@ class _Job:
     config: TrialConfig
     path: Path | None
     video: Path | None
+    inputs: dict
 
 
 _CACHE: dict = {}  # per process: the environment, plant and MPC of the last trial's setup
@@ -323,7 +441,8 @@ def _run_job(job: _Job) -> TrialRecord:
         torch._dynamo.reset()
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
     frames = [] if job.video is not None else None
-    record = run_trial(job.config, _CACHE["env"], _CACHE["plant"], _CACHE["mpc"], frames)
+    env, plant, mpc = _CACHE["env"], _CACHE["plant"], _CACHE["mpc"]
+    record = run_trial(job.config, env, plant, mpc, frames, inputs=job.inputs)
     if frames:
         from torchcontact.mpc.report import save_gif
 
@@ -331,12 +450,178 @@ def _run_job(job: _Job) -> TrialRecord:
     return record
 
 
-def finished_record(path: Path, config: TrialConfig) -> TrialRecord | None:
-    """The saved record of ``config`` at ``path``, None if absent or made otherwise."""
+_CONFIG_KINDS = {
+    **dict.fromkeys(("env", "task", "object", "dtype", "model", "collision", "gaps"), "str"),
+    **dict.fromkeys(("planner",), "str"),
+    **dict.fromkeys(("seed", "max_steps", "max_iter", "memory", "horizon", "scenes"), "int"),
+    "compile": "bool",
+    **dict.fromkeys(("stiffness", "relaxation"), "number?"),
+    **dict.fromkeys(("learned", "robot", "cost"), "str?"),
+    "tips": "strs?",
+}
+_OUTCOME_KINDS = {
+    **dict.fromkeys(("success", "fell"), "bool"),
+    **dict.fromkeys(("steps", "contact_slots", "contacts_found_max"), "int"),
+    "steps_with_dropped_contacts": "int",
+    **dict.fromkeys(("pos_err_mm", "quat_err", "angle_err_deg", "contacts_found_mean"), "number"),
+    **dict.fromkeys(("initial_pose", "target_pose", "aim_pose", "final_pose"), "pose"),
+    **dict.fromkeys(("detect_ms", "solve_ms", "sim_ms"), "numbers"),
+    "iterations": "ints",
+}
+_ITEM_KINDS = {"numbers": "number", "ints": "int", "strs": "str", "pose": "number"}
+
+
+def _is(value, kind: str) -> bool:
+    """Whether the JSON ``value`` is of ``kind`` (a key of the schemas above; ``?``: or None)."""
+    if kind.endswith("?"):
+        return value is None or _is(value, kind[:-1])
+    if kind in _ITEM_KINDS:
+        if not isinstance(value, (list, tuple)) or (kind == "pose" and len(value) != 7):
+            return False
+        return all(_is(item, _ITEM_KINDS[kind]) for item in value)
+    if kind == "number":
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if kind == "int":
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, {"bool": bool, "str": str}[kind])
+
+
+def record_problem(record) -> str | None:
+    """Why a record read from JSON is not a usable trial record (wrong shape, a missing key, a
+    wrong type, a non-finite value of :data:`FINITE_KEYS`, malformed ``inputs``); None if it
+    is usable."""
+    if not isinstance(record, dict):
+        return f"a JSON {type(record).__name__}, not an object"
+    stored = stored_config(record)
+    for key, kind in (*_CONFIG_KINDS.items(), *_OUTCOME_KINDS.items()):
+        value = stored[key] if key in stored else record.get(key)
+        if not _is(value, kind):
+            found = "missing" if key not in record else f"{value!r:.40}"
+            return f"{key} must be {kind.replace('?', ' or null')}, got {found}"
+    for key in FINITE_KEYS:
+        if not all(math.isfinite(x) for x in np.ravel(record[key])):
+            return f"{key} is not finite"
+    inputs = record.get("inputs")
+    if inputs is not None and not (
+        isinstance(inputs, dict) and all(_is(v, "str?") for v in inputs.values())
+    ):
+        return f"inputs must be an object of strings or nulls, got {inputs!r:.60}"
+    return None
+
+
+def read_record(path: Path) -> tuple[dict | None, str | None]:
+    """``(record, None)`` for a usable record at ``path`` (see :func:`record_problem`),
+    ``(None, why)`` for a corrupt one."""
+    try:
+        record = read_json(path)
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        return None, f"not valid JSON: {error}"
+    problem = record_problem(record)
+    return (None, problem) if problem else (record, None)
+
+
+def record_differences(record: dict, config: TrialConfig, inputs: dict) -> dict[str, tuple]:
+    """Identity fields where the usable saved ``record`` differs from ``config`` and
+    ``inputs``, as ``{field: (old, new)}`` (``inputs.KEY`` for an input; ``inputs`` when the
+    record predates inputs and ``config`` names a file)."""
+    new = asdict(config)
+    stored = stored_config(record)
+    differences = {key: (stored[key], new[key]) for key in new if stored[key] != new[key]}
+    old = record.get("inputs")
+    if old is None:
+        if any(inputs[key] is not None for key in INPUT_FILES):
+            differences["inputs"] = ("not recorded", "file hashes")
+        return differences
+    for key in dict.fromkeys([*old, *inputs]):
+        if old.get(key) != inputs.get(key):
+            differences[f"inputs.{key}"] = (old.get(key), inputs.get(key))
+    return differences
+
+
+def record_status(path: Path, config: TrialConfig, inputs: dict) -> tuple[str, object]:
+    """What a run does with ``path`` for ``config`` with ``inputs``: ``("run", None)`` when
+    absent, ``("reuse", record)``, ``("corrupt", why)``, ``("stale", differences)`` when it
+    differs only in :data:`RELEASE_FIELDS`, ``("mismatch", differences)`` otherwise."""
     if not path.exists():
-        return None
-    record = read_json(path)
-    return TrialRecord.from_dict(record) if config.matches(record) else None
+        return "run", None
+    record, problem = read_record(path)
+    if record is None:
+        return "corrupt", problem
+    differences = record_differences(record, config, inputs)
+    if not differences:
+        return "reuse", TrialRecord.from_dict(record)
+    stale = all(key in RELEASE_FIELDS for key in differences)
+    return ("stale" if stale else "mismatch"), differences
+
+
+def finished_record(path: Path, config: TrialConfig, inputs: dict | None = None):
+    """The saved :class:`TrialRecord` of ``config`` at ``path``; None if absent, corrupt or
+    made with other settings or ``inputs`` (default :func:`trial_inputs` of ``config``)."""
+    inputs = trial_inputs(config) if inputs is None else inputs
+    status, found = record_status(Path(path), config, inputs)
+    return found if status == "reuse" else None
+
+
+def set_aside(path: Path, label: str) -> Path:
+    """Rename ``path`` (``NAME.json``) to the first free ``NAME.LABEL-<n>.json`` (n ≥ 1,
+    never overwriting a file) and return the new path."""
+    n = 1
+    while (target := path.with_name(f"{path.stem}.{label}-{n}{path.suffix}")).exists():
+        n += 1
+    return path.rename(target)
+
+
+def _shown(key: str, value) -> str:
+    """A field's value in a message (a SHA-256 shortened to 12 hex digits)."""
+    if isinstance(value, str) and key.endswith("sha256"):
+        return f"{value[:12]}…"
+    return repr(value)
+
+
+def describe_differences(differences: dict[str, tuple]) -> str:
+    """``"max_steps 5 → 6, inputs.object_sha256 '1a2b…' → '3c4d…'"``."""
+    return ", ".join(
+        f"{key} {_shown(key, old)} → {_shown(key, new)}" for key, (old, new) in differences.items()
+    )
+
+
+def _check_names(configs: Sequence[TrialConfig]) -> None:
+    """Raise ``ValueError`` when two different configs would write the same record file."""
+    seen: dict[str, TrialConfig] = {}
+    for config in configs:
+        other = seen.setdefault(config.name, config)
+        if other != config:
+            differences = {
+                k: (v, getattr(config, k)) for k, v in asdict(other).items()
+                if v != getattr(config, k)
+            }  # fmt: skip
+            raise ValueError(
+                f"configs: two trials would write the same record {config.name}.json but "
+                f"differ in {describe_differences(differences)}; run them into separate out "
+                "folders"
+            )
+
+
+def _plan(folder: Path | None, configs, inputs: dict) -> dict[TrialConfig, tuple]:
+    """``{config: (path, status, found)}`` of :func:`record_status` for each distinct config;
+    raises :class:`RecordMismatch` (naming the first such record, its differences and what to
+    do) when a saved record was made with other settings or inputs. Reads only."""
+    plan = {}
+    for config in configs:
+        path = None if folder is None else folder / "trials" / f"{config.name}.json"
+        status = ("run", None) if path is None else record_status(path, config, inputs[config])
+        plan[config] = (path, *status)
+    mismatched = [(path, found) for path, status, found in plan.values() if status == "mismatch"]
+    if mismatched:
+        path, differences = mismatched[0]
+        more = f" ({len(mismatched) - 1} more records differ too)" if len(mismatched) > 1 else ""
+        raise RecordMismatch(
+            f"{path} was made with other settings or inputs than this run: "
+            f"{describe_differences(differences)}{more}. Nothing was run, nothing overwritten: "
+            f"write to another folder (--out / out=) or move the records of {path.parent} "
+            "away to rerun here."
+        )
+    return plan
 
 
 def run_trials(
@@ -355,24 +640,33 @@ def run_trials(
     where the trials run (:func:`~torchcontact.parallel.parallel_map`: ``"local"`` or
     ``"ray"``, a cluster's address or None for a local instance). ``out``: a folder whose
     ``trials/`` holds one JSON record per trial, written atomically here as each trial
-    finishes and reused when it matches its configuration (None: nothing written or reused);
-    ``videos``: the configs whose trial is also saved as ``out/NAME.gif`` (by the worker);
-    ``on_record(record, reused)`` is called as each record becomes available. A trial whose
-    Ray worker dies is run once more, with a warning.
+    finishes and reused when its identity (config and :func:`trial_inputs`) matches; a corrupt
+    record or one of an older release is set aside (renamed, with a warning) and its trial run
+    again, and a record made with other settings or inputs raises :class:`RecordMismatch`
+    before any trial runs (None: nothing written or reused); ``videos``: the configs whose trial
+    is also saved as ``out/NAME.gif`` (by the worker); ``on_record(record, reused)`` is called
+    as each record becomes available. A trial whose Ray worker dies is run once more, with a
+    warning. The files' SHA-256 are computed once per distinct file per call.
     """
     folder = None if out is None else Path(out)
+    distinct = list(dict.fromkeys(configs))
+    if folder is not None:
+        _check_names(distinct)
+    hashes: dict[str, str] = {}
+    inputs = {config: trial_inputs(config, hashes) for config in distinct}
+    plan = _plan(folder, distinct, inputs)
     records: dict[TrialConfig, TrialRecord] = {}
     jobs = []
-    for config in configs:
-        path = None if folder is None else folder / "trials" / f"{config.name}.json"
-        record = None if path is None else finished_record(path, config)
-        if record is not None:
-            records[config] = record
+    for config, (path, status, found) in plan.items():
+        if status == "reuse":
+            records[config] = found
             if on_record is not None:
-                on_record(record, True)
+                on_record(found, True)
             continue
+        if status in ("corrupt", "stale"):
+            _set_aside_with_warning(path, status, found)
         video = folder / f"{config.name}.gif" if folder and config in videos else None
-        jobs.append(_Job(config, path, video))
+        jobs.append(_Job(config, path, video, inputs[config]))
     finished = parallel_map(_run_job, jobs, workers, backend, address, on_retry=_warn_retry(jobs))
     with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
         for index, record in finished:
@@ -383,6 +677,16 @@ def run_trials(
                 on_record(record, False)
             bar.update()
     return [records[config] for config in configs]
+
+
+def _set_aside_with_warning(path: Path, status: str, found) -> None:
+    """Set the ``corrupt`` or ``stale`` record at ``path`` aside, saying so on one line."""
+    why = found if status == "corrupt" else f"an older release: {describe_differences(found)}"
+    target = set_aside(path, status)
+    tqdm.write(
+        f"warning: trial record {path} is {status} ({why}); kept as {target.name}, "
+        "running its trial again"
+    )
 
 
 def _warn_retry(jobs: list[_Job]) -> Callable[[int, BaseException], None]:

@@ -365,3 +365,45 @@ def test_vmap_over_contacts_matches_the_batched_velocity():
     bare = Contacts(**_fields(contacts))  # without frame and position
     with validate_args(False):
         torch.testing.assert_close(torch.func.vmap(velocity)(bare, b), mapped, rtol=0, atol=0)
+
+
+def test_contacts_move_to_meta_and_give_meta_rows():
+    """Meta tensors have shapes but no values: the value checks skip themselves."""
+    contacts = random_contacts(3, 6, batch=(2,), inactive=1).to("meta")
+    assert contacts.phi.is_meta and contacts.active.is_meta
+    assert contacts.active.dtype == torch.bool
+    jac, phi, active = contacts.dual_rows(4)
+    assert jac.is_meta and jac.shape == (2, 12, 6) and phi.shape == active.shape == (2, 12)
+    meta = Contacts(**{k: v.to("meta") for k, v in _fields(random_contacts(2, 4)).items()})
+    assert meta.slots == 2
+
+
+def test_compiling_the_rows_and_the_step_warns_of_no_cache(monkeypatch, caplog, recwarn):
+    """Dynamo warns when it traces a ``functools.lru_cache``d function: the directions are
+    computed afresh while compiling, to the same values."""
+    import logging
+
+    import torch._dynamo.utils
+
+    from torchcontact import cf_velocity
+    from torchcontact.contacts import _directions
+
+    monkeypatch.setattr(torch._dynamo.utils, "warn_once_cache", set())  # warn as if first
+    torch._dynamo.reset()
+    contacts = random_contacts(3, 6, batch=(5,), inactive=1)
+    Q = torch.rand(6, dtype=torch.float64) + 1.0
+    b = torch.randn(5, 6, dtype=torch.float64)
+
+    def velocity(c: Contacts, b: torch.Tensor) -> torch.Tensor:
+        jac, phi, _ = c.dual_rows(4)
+        return cf_velocity(Q, b, jac, phi, 0.1, 200.0)
+
+    with caplog.at_level(logging.WARNING):
+        compiled = torch.compile(velocity, backend="eager", fullgraph=True)(contacts, b)
+    torch._dynamo.reset()
+    messages = [str(w.message) for w in recwarn] + [r.getMessage() for r in caplog.records]
+    assert not [m for m in messages if "lru_cache" in m], messages
+    torch.testing.assert_close(compiled, velocity(contacts, b), rtol=0, atol=0)
+    for facets in (3, 4, 8):
+        fresh = _directions(facets, torch.float64, torch.device("cpu"))
+        assert torch.equal(fresh, facet_directions(facets, torch.float64))

@@ -16,6 +16,7 @@ from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV, tips_bef
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
+from torchcontact.results import read_json
 from torchcontact.shapes import make_object, object_names
 from torchcontact.sim.hands import HANDS, Hand
 
@@ -110,7 +111,8 @@ def test_a_user_mesh_runs_on_a_hand(tmp_path):
     out = tmp_path / "out"
     args = ["run", "trifinger", "--object", str(path), *FAST, "--trials", "1", "--out", str(out)]
     assert main(args) == 0
-    assert (out / "trials" / "trifinger_in-hand_wedge_seed0.json").exists()
+    (record,) = (out / "trials").glob("trifinger_in-hand_wedge-mesh-*_seed0.json")
+    assert read_json(record)["object"] == str(path.resolve())
 
 
 @pytest.mark.parametrize(

@@ -2,6 +2,7 @@
 
 import itertools
 import math
+import re
 
 import pytest
 import torch
@@ -368,3 +369,74 @@ def test_scalar_arguments_of_the_wrong_shape_name_the_argument(name, value):
     kwargs = _corrupt(name, value)
     with pytest.raises(ValueError, match=f"^{name}"):
         cf_velocity(**kwargs)
+
+
+# The batch shape is that of Q, b, jac and phi; h, stiffness and damping broadcast to it.
+@pytest.mark.parametrize(
+    "name, value, batch",
+    [
+        ("h", lambda B: torch.full((B, 1), 0.1, dtype=F64), (4,)),  # would give (B, B, nv)
+        ("h", lambda B: torch.full((3,), 0.1, dtype=F64), ()),  # adds a batch dimension
+        ("h", lambda B: torch.full((1,), 0.1, dtype=F64), ()),
+        ("stiffness", lambda B: torch.ones(5, 8, dtype=F64), ()),
+        ("stiffness", lambda B: torch.ones(2, B, 8, dtype=F64), (4,)),
+        ("damping", lambda B: torch.ones(3, 1, 8, dtype=F64), (4,)),
+    ],
+)
+def test_scalar_arguments_may_not_enlarge_the_batch(name, value, batch):
+    Q, b, jac, phi = random_step(3, 8, batch=batch)
+    kwargs = dict(Q=Q, b=b, jac=jac, phi=phi, h=0.1, stiffness=1.0, damping=0.1, gamma=10.0)
+    kwargs[name] = value(batch[0] if batch else 1)
+    expected = tuple(batch) if name == "h" else (*batch, 8)
+    got = re.escape(str(tuple(kwargs[name].shape)))
+    match = rf"^{name} must broadcast to {re.escape(str(expected))}.*got {got}"
+    with pytest.raises(ValueError, match=match):
+        cf_velocity(**kwargs)
+    with pytest.raises(ValueError, match=f"^{name}"):
+        cf_multipliers(**kwargs)
+
+
+def test_scalar_arguments_of_the_batch_shape_or_smaller_still_broadcast():
+    Q, b, jac, phi = random_step(3, 8, batch=(4,))
+    h, K = torch.full((4,), 0.1, dtype=F64), torch.ones(4, 1, dtype=F64)
+    v = cf_velocity(Q, b, jac, phi, h, K, torch.ones(8, dtype=F64), 10.0)
+    assert v.shape == (4, 3)
+    torch.testing.assert_close(v, cf_velocity(Q, b, jac, phi, 0.1, 1.0, 1.0, 10.0))
+
+
+@pytest.mark.parametrize("name", ["Q", "jac", "phi"])
+def test_mixed_dtypes_name_the_argument_and_the_dtypes(name):
+    kwargs = _corrupt(name, lambda x: x.float())
+    match = rf"^{name} must have the dtype of b \(torch.float64\), got torch.float32"
+    with pytest.raises(ValueError, match=match):
+        cf_velocity(**kwargs)
+    kwargs = _corrupt("b", lambda x: x.float())
+    with pytest.raises(ValueError, match=r"^Q must have the dtype of b \(torch.float32\)"):
+        cf_velocity(**kwargs)
+
+
+@pytest.mark.parametrize("name", ["Q", "jac", "phi", "stiffness"])
+def test_mixed_devices_name_the_argument_and_the_devices(name):
+    meta = torch.ones(4, dtype=F64, device="meta")
+    kwargs = _corrupt(name, lambda x: meta if name == "stiffness" else x.to("meta"))
+    with pytest.raises(ValueError, match=rf"^{name} must be on the device of b \(cpu\), got meta"):
+        cf_velocity(**kwargs)
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_meta_tensors_skip_the_value_checks(dense):
+    Q, b, jac, phi = (x.to("meta") for x in random_step(3, 4, batch=(2,), dense=dense))
+    h = torch.full((2,), 0.1, dtype=F64, device="meta")
+    v = cf_velocity(Q, b, jac, phi, h, torch.ones(4, dtype=F64, device="meta"), 0.1, 10.0)
+    assert v.is_meta and v.shape == (2, 3)
+
+
+def test_vmap_over_cf_velocity_with_value_checks_on():
+    from torchcontact import validate_args
+
+    Q, b, jac, phi = random_step(3, 4, batch=(5,), dense=True)
+    with validate_args(True):
+        mapped = torch.func.vmap(cf_velocity, in_dims=(0, 0, 0, 0, None, None))(
+            Q, b, jac, phi, 0.1, 2.0
+        )
+        torch.testing.assert_close(mapped, cf_velocity(Q, b, jac, phi, 0.1, 2.0))

@@ -130,7 +130,7 @@ def test_small_rotation_is_first_order_exact():
     q = torch.tensor([0.5, 0.5, -0.5, 0.5], dtype=torch.float64)
     omega = torch.tensor([0.3, -1.2, 0.7], dtype=torch.float64)
     h = 1e-7
-    rate = (integrate(q, omega, h, layout) - integrate(q, omega, -h, layout)) / (2 * h)
+    rate = (integrate(q, omega, h, layout) - integrate(q, -omega, h, layout)) / (2 * h)
     w, x, y, z = q
     a, b, c = omega
     expected = 0.5 * torch.stack(
@@ -253,3 +253,50 @@ def test_missing_or_wrong_blocks_raise():
     for joints, blocks in ((["ball", "hinge"], {"object": 1, "robot": 1}), (["free"], None)):
         with pytest.raises(ValueError, match="block 'object' of one free joint"):
             JointLayout(joints, blocks).object_pose(torch.zeros(JointLayout(joints).nq))
+
+
+def _bad_integrate_inputs(name, value):
+    layout = JointLayout(["free", "slide", "ball"])
+    q = torch.tensor([0, 0, 0.1, 1, 0, 0, 0, 0.2, 0.5, 0.5, 0.5, 0.5], dtype=torch.float64)
+    args = {"q": q.expand(2, -1).clone(), "v": torch.ones(2, 10, dtype=torch.float64), "h": 0.1}
+    args[name] = value(args[name]) if callable(value) else value
+    return args, layout
+
+
+def _set(index, value):
+    def fn(x):
+        x = x.clone()
+        x[1, index] = value
+        return x
+
+    return fn
+
+
+@pytest.mark.parametrize(
+    "name, value, match",
+    [
+        ("h", -0.1, "^h must be positive"),
+        ("h", 0.0, "^h must be positive"),
+        ("h", float("nan"), "^h must be finite"),
+        ("h", torch.tensor([0.1, -0.1], dtype=torch.float64), "^h must be positive"),
+        ("h", torch.full((2, 1), 0.1, dtype=torch.float64), r"^h must broadcast to \(2,\)"),
+        ("h", torch.full((3, 2), 0.1, dtype=torch.float64), r"^h must broadcast to \(2,\)"),
+        ("v", _set(4, float("nan")), "^v must be finite"),
+        ("q", _set(0, float("inf")), "^q must be finite"),
+        ("q", _set(slice(3, 7), 0.0), "^q must hold non-zero quaternions"),
+        ("q", _set(slice(8, 12), 0.0), "^q must hold non-zero quaternions"),
+        ("v", lambda v: v[:1].expand(3, -1), "^batch shapes of q and v must broadcast"),
+    ],
+)
+def test_bad_inputs_name_the_argument(name, value, match):
+    args, layout = _bad_integrate_inputs(name, value)
+    with pytest.raises(ValueError, match=match):
+        integrate(layout=layout, **args)
+
+
+def test_value_checks_can_be_switched_off():
+    from torchcontact import validate_args
+
+    args, layout = _bad_integrate_inputs("v", _set(4, float("nan")))
+    with validate_args(False):
+        assert integrate(layout=layout, **args)[1].isnan().any()

@@ -1,6 +1,7 @@
 """Transition datasets: the file format round-trips, collection resumes, bad files fail clearly."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -198,3 +199,31 @@ def test_box_pushing_refuses_mpc_actions_by_name(tmp_path):
         collect(tmp_path / "bp", "box_pushing", trajectories=1, steps=5, actions="mpc")
     with pytest.raises(ValueError, match="box_pushing has object 'cube'"):
         make_scene("box_pushing", "stick")
+
+
+def test_nan_in_a_trajectory_is_reported_with_its_file(dataset, tmp_path):
+    broken = _copy(dataset, tmp_path / "nan")
+    path = broken / "trajectory_00001.npz"
+    with np.load(path) as archive:
+        arrays = dict(archive)
+    arrays["phi"][2, 0] = np.nan
+    np.savez(path, **arrays)
+    with pytest.raises(DataFormatError, match=r"trajectory_00001\.npz: array 'phi' holds NaN"):
+        load(broken)
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ({"noise": -1.0}, "noise must be a non-negative finite number"),
+        ({"noise": math.inf}, "noise must be a non-negative finite number"),
+        ({"workers": 0}, "workers must be a positive integer"),
+        ({"backend": "slurm"}, "backend must be one of"),
+        ({"address": "auto"}, "address is for backend='ray'"),
+    ],
+)
+def test_bad_arguments_are_refused_before_anything_is_written(tmp_path, bad, message):
+    directory = tmp_path / "data"
+    with pytest.raises(ValueError, match=message):
+        collect(directory, trajectories=1, progress=False, **{**SCENE, **bad})
+    assert not directory.exists()

@@ -313,3 +313,33 @@ def test_models_are_built_by_name():
     for name in ("QP", "anitescu", ""):
         with pytest.raises(ValueError, match="name"):
             contact_model(name)
+
+
+def test_module_refuses_scalars_that_enlarge_the_batch():
+    """``h`` of shape ``(B, 1)`` would give a ``(B, B, nv)`` velocity; a batched K(q) over
+    unbatched contacts would add a batch dimension."""
+    nc, nv, nq, B = 2, 4, 5, 3
+    c = random_contacts(nc, nv, (B,))
+    Q, b = random_metric(nv, False, (B,)), torch.randn(B, nv, dtype=F64)
+    model = ComplementarityFree(stiffness=3.0, damping=Relative(0.1)).to(F64)
+    with pytest.raises(ValueError, match=rf"^h must broadcast to \({B},\).*got \({B}, 1\)"):
+        model(Q, b, c, torch.full((B, 1), 0.1, dtype=F64))
+    with pytest.raises(ValueError, match=r"^h must broadcast to \(\).*got \(3,\)"):
+        model(Q[0], b[0], index_contacts(c, 0), torch.full((3,), 0.1, dtype=F64))
+    state = ComplementarityFree(stiffness=StateNetwork(nq, 4 * nc, hidden=4)).to(F64)
+    q = torch.randn(5, nq, dtype=F64)
+    with pytest.raises(ValueError, match=r"^stiffness must broadcast to \(8,\).*got \(5, 8\)"):
+        state(Q[0], b[0], index_contacts(c, 0), 0.1, q)
+
+
+def test_nan_in_the_state_of_a_state_dependent_stiffness_names_q():
+    nc, nv, nq = 2, 4, 5
+    c = random_contacts(nc, nv)
+    model = ComplementarityFree(stiffness=StateNetwork(nq, 4 * nc, hidden=4)).to(F64)
+    q = torch.randn(nq, dtype=F64)
+    q[1] = math.nan
+    Q, b = random_metric(nv, False), torch.randn(nv, dtype=F64)
+    with pytest.raises(ValueError, match="^q must be finite"):
+        model(Q, b, c, 0.1, q)
+    with pytest.raises(ValueError, match="^q must be finite"):
+        model.freeze(c, 0.1, q)

@@ -49,10 +49,26 @@ def test_finished_trials_are_not_run_again(tmp_path):
     assert main([*ARGS, *FAST, "--out", str(out)]) == 0
     after = path.stat()
     assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
-    # other settings: a new trial
-    assert main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", str(out)]) == 0
-    assert path.stat().st_ino != before.st_ino
-    record = json.loads(path.read_text())
+
+
+def test_a_record_of_other_settings_refuses_the_run_in_one_line(tmp_path, capsys):
+    """Other settings into the same folder: refused before any trial, the record kept; another
+    folder runs them."""
+    out = tmp_path / "out"
+    main([*ARGS, *FAST, "--out", str(out)])
+    path = out / "trials" / RECORD
+    before = path.read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", str(out)])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith("torchcontact run: error: ")
+    assert "--out" in err and "max_steps 15 → 16" in err
+    assert path.read_text() == before
+    other = tmp_path / "other"
+    assert main([*ARGS, "--max-steps", "16", *FAST[2:], "--out", str(other)]) == 0
+    record = json.loads((other / "trials" / RECORD).read_text())
     assert record["max_steps"] == 16 and record["steps"] == 16
 
 

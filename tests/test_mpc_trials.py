@@ -11,23 +11,28 @@ import pytest
 
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
-from torchcontact.environments.presets import PAPER
+from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ComplementarityFree, RelaxedQP
+from torchcontact.mpc import trials
 from torchcontact.mpc.report import summarize
 from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
     LEGACY_DEFAULTS,
     MPC_MODELS,
     SCENES_VERSION,
+    RecordMismatch,
     TrialConfig,
     TrialRecord,
     build_trial,
     finished_record,
+    record_status,
     run_trial,
     run_trials,
     trial_configs,
+    trial_inputs,
 )
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
+from torchcontact.results import write_json
 
 CONFIG = TrialConfig(
     env="fingertips",
@@ -41,6 +46,10 @@ CONFIG = TrialConfig(
     stiffness=STIFFNESS,
 )
 TWO = [CONFIG, dataclasses.replace(CONFIG, seed=1)]
+FAST = trial_configs(
+    "fingertips", [("rotation", "cube")], range(1), MPCSettings(max_iter=5, compile=False),
+    max_steps=3,
+)  # fmt: skip
 TIMINGS = {"detect_ms", "solve_ms", "sim_ms"}
 
 
@@ -175,13 +184,23 @@ def test_an_interrupted_sweep_resumes_without_redoing_finished_trials(tmp_path):
     assert [r.config for r in records] == TWO
 
 
-def test_other_settings_make_a_new_trial(tmp_path):
+def test_a_record_of_other_settings_refuses_the_run_before_anything_runs(tmp_path):
+    """Another ``max_steps`` in the same folder would overwrite the record: the run is refused,
+    naming the file, the field (old → new) and what to do, before its other trial runs."""
     _run([CONFIG], tmp_path)
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    before = path.read_bytes()
     longer = dataclasses.replace(CONFIG, max_steps=6)
-    assert finished_record(tmp_path / "trials" / f"{CONFIG.name}.json", longer) is None
-    (record,), seen = _run([longer], tmp_path)
+    assert finished_record(path, longer) is None
+    fresh = dataclasses.replace(longer, seed=1)  # would run first, were the run not refused
+    seen = []
+    with pytest.raises(RecordMismatch, match=r"max_steps 5 → 6") as error:
+        run_trials([fresh, longer], out=tmp_path, progress=False, on_record=seen.append)
+    assert str(path) in str(error.value) and "--out" in str(error.value)
+    assert seen == [] and path.read_bytes() == before
+    assert sorted(p.name for p in (tmp_path / "trials").iterdir()) == [path.name]
+    (record,), seen = _run([longer], tmp_path / "other")  # another folder: runs
     assert seen == [(0, False)] and record.steps == 6
-    assert json.loads((tmp_path / "trials" / f"{CONFIG.name}.json").read_text())["max_steps"] == 6
 
 
 def _strip(tmp_path, config: TrialConfig, keys) -> dict:
@@ -201,9 +220,9 @@ def test_records_written_before_the_solver_options_still_resume(tmp_path):
     _strip(tmp_path, CONFIG, keys)
     _, seen = _run([CONFIG], tmp_path)
     assert seen == [(0, True)]
-    # a later setting than the legacy one: run again
-    _, seen = _run([dataclasses.replace(CONFIG, memory=4)], tmp_path)
-    assert seen == [(0, False)]
+    # another setting than the legacy one: refused, not overwritten
+    with pytest.raises(RecordMismatch, match="memory 8 → 4"):
+        _run([dataclasses.replace(CONFIG, memory=4)], tmp_path)
 
 
 def test_records_with_the_models_former_names_resume(tmp_path):
@@ -220,14 +239,32 @@ def test_records_with_the_models_former_names_resume(tmp_path):
     assert seen == [(0, True)]
 
 
-def test_records_of_older_scenes_are_run_again(tmp_path):
-    """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ."""
+def test_records_of_older_scenes_are_set_aside_and_run_again(tmp_path, capsys):
+    """A record without ``scenes`` comes from version 1 of the plants: its outcome may differ.
+    It is kept beside the new one, with a warning."""
     _run([CONFIG], tmp_path)
     assert _strip(tmp_path, CONFIG, ("scenes",))["scenes"] == SCENES_VERSION
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    old = path.read_bytes()
     _, seen = _run([CONFIG], tmp_path)
     assert seen == [(0, False)]
-    path = tmp_path / "trials" / f"{CONFIG.name}.json"
     assert json.loads(path.read_text())["scenes"] == SCENES_VERSION
+    kept = path.with_name(f"{CONFIG.name}.stale-1.json")
+    assert kept.read_bytes() == old
+    assert f"{path} is stale" in capsys.readouterr().out
+
+
+def test_records_of_other_library_versions_are_set_aside_and_run_again(tmp_path):
+    (config,) = FAST
+    _run([config], tmp_path)
+    path = tmp_path / "trials" / f"{config.name}.json"
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "inputs": {**record["inputs"], "torch": "1.0"}}))
+    _, seen = _run([config], tmp_path)
+    assert seen == [(0, False)]
+    assert json.loads(path.read_text())["inputs"] == trial_inputs(config)
+    kept = json.loads(path.with_name(f"{config.name}.stale-1.json").read_text())
+    assert kept["inputs"]["torch"] == "1.0"
 
 
 def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path):
@@ -238,10 +275,8 @@ def test_records_from_before_the_collision_option_count_as_part_by_part(tmp_path
     assert _strip(tmp_path, parts, ("collision",))["collision"] == "parts"
     _, seen = _run([parts], tmp_path)
     assert seen == [(0, True)]
-    _, seen = _run([CONFIG], tmp_path)  # the default, "hull": run again
-    assert seen == [(0, False)]
-    path = tmp_path / "trials" / f"{CONFIG.name}.json"
-    assert json.loads(path.read_text())["collision"] == "hull"
+    with pytest.raises(RecordMismatch, match="collision 'parts' → 'hull'"):
+        _run([CONFIG], tmp_path)  # the default, "hull": not over a part-by-part record
 
 
 def test_workers_must_be_a_positive_integer():
@@ -269,3 +304,158 @@ def test_summary_counts_falls_and_reads_them_from_older_records():
     assert summarize([record(True), record(False), record(z_end=-0.17)])["falls"] == 2
     assert summarize([record(False), record(z_end=0.02)])["falls"] == 0
     assert summarize([record(True), record(poses=False)])["falls"] is None
+
+
+@pytest.fixture(scope="module")
+def fast_record() -> dict:
+    """The JSON of trial 0 of :data:`FAST`, run once, writing nothing."""
+    (record,) = run_trials(FAST, progress=False)
+    return json.loads(json.dumps(record.to_dict()))
+
+
+def _record_path(folder, config: TrialConfig):
+    return folder / "trials" / f"{config.name}.json"
+
+
+def test_a_truncated_record_is_set_aside_named_and_run_again(tmp_path, capsys):
+    (config,) = FAST
+    _run(FAST, tmp_path)
+    path = _record_path(tmp_path, config)
+    for n in (1, 2):  # a second corrupt record does not overwrite the first one set aside
+        truncated = path.read_bytes()[: len(path.read_bytes()) // 2]
+        path.write_bytes(truncated)
+        _, seen = _run(FAST, tmp_path)
+        assert seen == [(0, False)]
+        out = capsys.readouterr().out
+        assert f"{path} is corrupt (not valid JSON" in out and f".corrupt-{n}.json" in out
+        assert path.with_name(f"{config.name}.corrupt-{n}.json").read_bytes() == truncated
+        assert finished_record(path, config) is not None  # the rerun's record, valid
+
+
+def _mutations(record: dict) -> list:
+    missing = {k: v for k, v in record.items() if k != "pos_err_mm"}
+    return [
+        ([1, 2], "a JSON list, not an object"),
+        (missing, "pos_err_mm must be number, got missing"),
+        ({**record, "steps": "3"}, "steps must be int"),
+        ({**record, "success": 1}, "success must be bool"),
+        ({**record, "final_pose": record["final_pose"][:6]}, "final_pose must be pose"),
+        ({**record, "pos_err_mm": None}, "pos_err_mm must be number"),  # a NaN written as null
+        ({**record, "quat_err": float("nan")}, "quat_err is not finite"),
+        ({**record, "aim_pose": [float("inf")] * 7}, "aim_pose is not finite"),
+        ({**record, "inputs": ["x"]}, "inputs must be an object"),
+    ]
+
+
+@pytest.mark.parametrize("index", range(9))
+def test_a_record_of_the_wrong_shape_or_not_finite_counts_as_corrupt(tmp_path, fast_record, index):
+    (config,) = FAST
+    bad, why = _mutations(fast_record)[index]
+    path = _record_path(tmp_path, config)
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(bad))  # json writes NaN and Infinity literals
+    status, found = record_status(path, config, trial_inputs(config))
+    assert status == "corrupt" and why in found
+    assert finished_record(path, config) is None
+    assert record_status(path.with_name("absent.json"), config, {})[0] == "run"
+
+
+@pytest.mark.parametrize("index", [0, 6])
+def test_a_wrong_shape_or_non_finite_record_does_not_block_the_sweep(tmp_path, fast_record, index):
+    (config,) = FAST
+    bad, _ = _mutations(fast_record)[index]
+    path = _record_path(tmp_path, config)
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(bad))
+    (record,), seen = _run(FAST, tmp_path)
+    assert seen == [(0, False)] and np.isfinite(record.pos_err_mm)
+    assert path.with_name(f"{config.name}.corrupt-1.json").read_text() == json.dumps(bad)
+    assert finished_record(path, config) == record
+
+
+def test_a_trial_with_a_non_finite_outcome_raises_and_writes_no_record(tmp_path, monkeypatch):
+    (config,) = FAST
+    monkeypatch.setattr(trials.tasks, "position_error", lambda *args: np.float64("nan"))
+    with pytest.raises(ValueError, match=f"trial {config.name} .*non-finite pos_err_mm"):
+        run_trials(FAST, out=tmp_path, progress=False)
+    assert not _record_path(tmp_path, config).exists()
+
+
+def _fake_record(folder, fast_record: dict, config: TrialConfig):
+    """A record of ``config`` with ``fast_record``'s outcome and ``config``'s current inputs,
+    written where a run of ``config`` into ``folder`` looks for it."""
+    outcome = TrialRecord.from_dict(fast_record)
+    record = dataclasses.replace(outcome, config=config, inputs=trial_inputs(config))
+    return write_json(_record_path(folder, config), record.to_dict())
+
+
+@pytest.mark.parametrize("field", ["object", "learned"])
+def test_a_changed_mesh_or_checkpoint_at_the_same_path_refuses_the_run(
+    tmp_path, fast_record, field
+):
+    """The record of a mesh (or retrained checkpoint) is reused while the file is the same and
+    refused once its content changed: its SHA-256 differs."""
+    (config,) = FAST
+    file = tmp_path / ("cube.stl" if field == "object" else "model.pt")
+    file.write_bytes(b"first version")
+    if field == "object":
+        config = dataclasses.replace(config, env="trifinger", object=str(file))
+    else:
+        config = dataclasses.replace(config, learned=str(file), stiffness=None)
+    path = _fake_record(tmp_path / "out", fast_record, config)
+    before = path.read_bytes()
+    (reused,), seen = _run([config], tmp_path / "out")
+    assert seen == [(0, True)] and reused.inputs[f"{field}_sha256"] is not None
+    file.write_bytes(b"second version")
+    pattern = rf"inputs\.{field}_sha256 [0-9a-f]{{12}}… → [0-9a-f]{{12}}…"
+    with pytest.raises(RecordMismatch, match=pattern) as error:
+        _run([config], tmp_path / "out")
+    assert path.read_bytes() == before
+    assert str(path) in str(error.value)
+
+
+def test_a_record_without_inputs_counts_as_current_only_when_it_names_no_file(
+    tmp_path, fast_record
+):
+    (config,) = FAST
+    legacy = {k: v for k, v in fast_record.items() if k != "inputs"}
+    path = _record_path(tmp_path, config)
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(legacy))
+    assert record_status(path, config, trial_inputs(config))[0] == "reuse"
+    mesh = tmp_path / "cube.stl"
+    mesh.write_bytes(b"mesh")
+    config = dataclasses.replace(config, env="trifinger", object=str(mesh))
+    path.write_text(json.dumps({**legacy, "env": "trifinger", "object": str(mesh)}))
+    status, differences = record_status(path, config, trial_inputs(config))
+    assert status == "stale" and list(differences) == ["inputs"]  # set aside and run again
+
+
+def test_a_mesh_named_like_a_builtin_object_gets_its_own_record_name():
+    builtin = dataclasses.replace(CONFIG, env="trifinger")
+    here = dataclasses.replace(builtin, object="cube.stl")
+    there = dataclasses.replace(builtin, object="/meshes/cube.stl")
+    assert builtin.name == "trifinger_rotation_cube_seed0"  # built-in names as before
+    assert here.name.startswith("trifinger_rotation_cube-mesh-") and here.name.endswith("_seed0")
+    assert len({builtin.name, here.name, there.name}) == 3
+
+
+def test_two_configs_writing_one_record_are_refused(tmp_path):
+    other_k = dataclasses.replace(CONFIG, stiffness=1.0)
+    with pytest.raises(ValueError, match=f"same record {CONFIG.name}.json.*stiffness"):
+        run_trials([CONFIG, other_k], out=tmp_path, progress=False)
+
+
+def test_the_summary_of_a_pair_without_success_is_written_with_null(tmp_path, fast_record):
+    assert not fast_record["success"]  # 3 steps are too few
+    summary = summarize([fast_record, fast_record])
+    assert np.isnan(summary["pos_err_mm_mean_success"])
+    text = write_json(tmp_path / "summary.json", {**summary, "pairs": {"p": summary}}).read_text()
+    assert "NaN" not in text and "Infinity" not in text
+
+    def refuse(constant):
+        raise AssertionError(f"{constant} in summary.json")
+
+    read = json.loads(text, parse_constant=refuse)
+    assert read["pos_err_mm_mean_success"] is None and read["pairs"]["p"]["trials"] == 2
+    assert read["pos_err_mm_mean"] == pytest.approx(fast_record["pos_err_mm"])

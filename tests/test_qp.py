@@ -275,3 +275,52 @@ def test_frictionless_contact_models_agree(facets):
     v_far, beta_far = qp.row_impulses(Q, b, far, h)
     torch.testing.assert_close(v_far, free, rtol=1e-9, atol=1e-9)
     assert float(beta_far.abs().max()) < 1e-9
+
+
+# Bad input: the QP raises the ValueError the complementarity-free step raises for it.
+def _eye(nv=3):
+    return torch.eye(nv, dtype=F64)
+
+
+BAD_QP_INPUTS = [
+    ("Q", lambda Q: Q.index_fill(-1, torch.tensor([1]), 0.0), r"^Q \(diagonal\) must be positive"),
+    ("Q", lambda Q: Q.index_fill(-1, torch.tensor([1]), -1.0), r"^Q \(diagonal\) must be positive"),
+    ("Q", lambda Q: Q.index_fill(-1, torch.tensor([0]), np.nan), r"^Q \(diagonal\) must be finite"),
+    ("Q", lambda Q: torch.diag_embed(Q) - 5 * _eye(), "^Q must be symmetric positive definite"),
+    ("Q", lambda Q: torch.diag_embed(Q) + torch.triu(torch.ones(3, 3, dtype=F64), 1), "^Q must"),
+    ("Q", lambda Q: torch.diag_embed(Q).index_fill(-1, torch.tensor([0]), np.nan), "^Q must be"),
+    ("b", lambda b: b.index_fill(-1, torch.tensor([0]), np.nan), "^b must be finite"),
+    ("h", -0.1, "^h must be positive"),
+    ("h", lambda h: torch.full((2, 1), 0.1, dtype=F64), "^h must broadcast"),
+    ("jac", lambda J: J.float(), "^jac must have the dtype of b"),
+]
+
+
+def _qp_args(name, value, m=2):
+    gen = torch.Generator().manual_seed(18)
+    Q, b, jac, phi, h = _problem(gen, 3, m, dense=False, batch=(2,))
+    args = dict(Q=Q, b=b, jac=jac, phi=phi, h=h)
+    args[name] = value(args[name]) if callable(value) else value
+    return args
+
+
+@pytest.mark.parametrize("m", [0, 2])
+@pytest.mark.parametrize("name, value, match", BAD_QP_INPUTS)
+def test_bad_input_raises_as_the_complementarity_free_step_does(name, value, match, m):
+    args = _qp_args(name, value, m)
+    with pytest.raises(ValueError, match=match) as cf_error:
+        cf_velocity(**args, stiffness=1.0)
+    with pytest.raises(ValueError, match=match) as qp_error:
+        qp_solve(**args)
+    assert str(qp_error.value) == str(cf_error.value)
+
+
+def test_the_qp_model_checks_its_metric():
+    gen = torch.Generator().manual_seed(19)
+    contacts = _contacts(gen, 2, 3, [True, False])
+    model = AnitescuQP()
+    with pytest.raises(ValueError, match=r"^Q \(diagonal\) must be positive"):
+        model(torch.tensor([1.0, 0.0, 1.0], dtype=F64), torch.ones(3, dtype=F64), contacts, 0.1)
+    singular = torch.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]], dtype=F64)
+    with pytest.raises(ValueError, match="^Q must be symmetric positive definite"):
+        model(singular, torch.ones(3, dtype=F64), Contacts.empty(2, 3, dtype=F64), 0.1)

@@ -127,3 +127,11 @@ def test_bad_decomposition_names_the_argument(tmp_path):
     trimesh.creation.box().export(path)
     with pytest.raises(ValueError, match="decomposition"):
         load_object(path, 0.1, decomposition="vhacd")
+
+
+def test_a_flat_mesh_is_refused_by_name_not_by_qhull(tmp_path):
+    path = tmp_path / "flat.stl"
+    trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]).export(path)
+    for decomposition in ("hull", "auto"):
+        with pytest.raises(ValueError, match=r"flat\.stl' enclose no volume"):
+            load_object(path, 0.1, decomposition=decomposition)

@@ -480,3 +480,44 @@ def test_bad_qpos_shape_raises(shape):
     detector = ContactDetector(model, ["object"], slots=4)
     with pytest.raises(ValueError, match="qpos"):
         detector(np.zeros(shape))
+
+
+def test_nan_qpos_is_named_qpos():
+    model, q = _overlapping_robot_state()
+    detector = ContactDetector(model, ["object"], slots=12)
+    q[5] = np.nan
+    with pytest.raises(ValueError, match="^qpos must be finite"):
+        detector(q)
+    with pytest.raises(ValueError, match="^qpos must be finite"):
+        detector(torch.as_tensor(np.stack([model.qpos0, q])))
+
+
+def test_a_single_body_name_or_id_is_one_body():
+    model, q = _overlapping_robot_state()
+    listed = ContactDetector(model, ["object"], slots=12, margin=MARGIN)
+    obj = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    for single in ("object", obj, np.int64(obj)):
+        detector = ContactDetector(model, single, slots=12, margin=MARGIN)
+        assert detector.bodies == listed.bodies == frozenset({obj})
+        torch.testing.assert_close(detector(q).phi, listed(q).phi)
+
+
+def test_found_describes_every_state_of_a_batch():
+    """An int for one state, the count of each state for a batch (the last alone would hide
+    that an earlier state needs more slots)."""
+    model, bodies, detector, states, _ = _states("box_ball", count=2, seed=3)
+    far = model.qpos0.copy()
+    far[2] = far[9] = 1.0  # both bodies high above the plane and apart
+    far[7] = 1.0
+    detector(states[0])
+    assert isinstance(detector.found, int) and detector.found >= 1
+    counts = [detector(s).n_active().item() for s in (states[0], states[1], far)]
+    assert counts[2] == 0
+    batch = np.stack([states[0], states[1], far])
+    detector(batch)
+    assert isinstance(detector.found, np.ndarray)
+    assert detector.found.tolist() == counts and detector.found.max() >= 1
+    detector(batch.reshape(3, 1, -1))
+    assert detector.found.shape == (3, 1)
+    detector(np.zeros((0, model.nq)))
+    assert detector.found.shape == (0,)

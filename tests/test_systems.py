@@ -191,3 +191,11 @@ def test_full_dynamic_bad_arguments(shapes, h, name):
 def test_full_dynamic_rejects_nan():
     with pytest.raises(ValueError, match="velocity"):
         full_dynamic(torch.eye(2), torch.tensor([0.0, float("nan")]), torch.zeros(2), 0.1)
+
+
+def test_non_finite_commands_name_themselves():
+    system = bar_and_cubes(1)
+    with pytest.raises(ValueError, match="^u must be finite"):
+        system(torch.tensor([[0.01], [float("nan")]], dtype=torch.float64))
+    with pytest.raises(ValueError, match="^robot_force must be finite"):
+        system(torch.zeros(1, dtype=torch.float64), torch.tensor([float("inf")]))

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import io
 import math
+import pickle
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -36,6 +38,10 @@ DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
 learnable parameterization (started at 0.1 × the initial K)."""
 
 CHECKPOINT_VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A file is not a torchcontact checkpoint, or not one this version can rebuild."""
 
 
 @dataclass(frozen=True)
@@ -136,24 +142,37 @@ def save_checkpoint(path: str | Path, model: ComplementarityFree, config: FitCon
 
 
 def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, dict]:
-    """Rebuild the model saved by :func:`save_checkpoint`: ``(model, config, meta)``."""
+    """Rebuild the model saved by :func:`save_checkpoint`: ``(model, config, meta)``.
+
+    Raises :class:`CheckpointError` naming the file when it is unreadable, not a checkpoint
+    (only tensors and plain data are ever unpickled) or of another version.
+    """
     path = Path(path)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError) as error:
-        raise ValueError(f"{path}: not a readable checkpoint ({error})") from None
+    except pickle.UnpicklingError:
+        raise CheckpointError(
+            f"{path}: not a torchcontact checkpoint (expected the model.pt of learn-k)"
+        ) from None
+    except (OSError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as error:
+        raise CheckpointError(f"{path}: not a readable checkpoint ({error})") from None
     if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
         found = payload.get("version") if isinstance(payload, dict) else None
-        raise ValueError(
-            f"{path}: expected checkpoint version {CHECKPOINT_VERSION}, found {found!r}"
+        raise CheckpointError(
+            f"{path}: not a torchcontact checkpoint: expected version {CHECKPOINT_VERSION}, "
+            f"found {found!r}"
         )
-    config = FitConfig(**payload["config"])
-    meta = payload["meta"]
-    model = build_model(config, meta)
-    state = payload["state_dict"]
-    dtype = next(iter(state.values())).dtype
-    model = model.to(dtype)
-    model.load_state_dict(state)
+    try:
+        config = FitConfig(**payload["config"])
+        meta = payload["meta"]
+        model = build_model(config, meta)
+        state = payload["state_dict"]
+        model = model.to(next(iter(state.values())).dtype)
+        model.load_state_dict(state)
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, StopIteration) as error:
+        raise CheckpointError(
+            f"{path}: a damaged checkpoint: it does not rebuild its model ({error})"
+        ) from None
     return model, config, meta
 
 

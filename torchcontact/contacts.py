@@ -20,16 +20,16 @@ def facet_directions(facets: int, dtype=None, device=None) -> torch.Tensor:
     """``(facets, 2)`` unit tangent directions (cos, sin of 2πk/n_d) of the polyhedral cone.
 
     With ``facets=4`` they are t₁, t₂, −t₁, −t₂. The tensor is cached and shared: read only.
+    While ``torch.compile`` traces, they are computed afresh (the same values, the same ops as
+    a traced cache miss), as Dynamo cannot trace a cache and warns when asked to.
     """
     if not isinstance(facets, int) or facets < 3:
         raise ValueError(f"facets must be an integer >= 3, got {facets!r}")
-    return _facet_directions(
-        facets, dtype or torch.get_default_dtype(), torch.device(device or "cpu")
-    )
+    compute = _directions if torch.compiler.is_compiling() else _facet_directions
+    return compute(facets, dtype or torch.get_default_dtype(), torch.device(device or "cpu"))
 
 
-@functools.lru_cache(maxsize=64)
-def _facet_directions(facets: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def _directions(facets: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     # A normal tensor even on a first call under inference_mode: the cached one is later used
     # in autograd, which refuses inference tensors.
     with torch.inference_mode(False):
@@ -38,6 +38,9 @@ def _facet_directions(facets: int, dtype: torch.dtype, device: torch.device) -> 
         # Snap round-off (cos(π/2) = 6e-17) so the 4-facet rows are exactly ±t₁, ±t₂.
         directions = torch.where(directions.abs() < 1e-12, torch.zeros_like(directions), directions)
         return directions.to(dtype=dtype, device=device)
+
+
+_facet_directions = functools.lru_cache(maxsize=64)(_directions)
 
 
 @dataclass(frozen=True)

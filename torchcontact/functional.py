@@ -13,9 +13,11 @@ import torch
 import torch.nn.functional as F
 
 from torchcontact.validation import (
+    check_broadcasts_to,
     check_finite,
     check_nonnegative,
     check_positive,
+    check_same_kind,
     check_shape,
     check_tensor,
     checking_values,
@@ -50,29 +52,51 @@ def is_dense_metric(Q: torch.Tensor, b: torch.Tensor) -> bool:
     return square and Q.shape[:-1] != b.shape[:-1]
 
 
-def metric_solver(Q: torch.Tensor, b: torch.Tensor):
-    """Return ``x ↦ Q⁻¹x`` for ``x: (..., nv)``; factorizes a dense ``Q`` once (Cholesky).
-
-    Raises ``ValueError`` naming ``Q`` when it is not symmetric positive definite.
-    """
+def _check_metric_entries(Q: torch.Tensor, b: torch.Tensor) -> bool:
+    """Check what can be read of ``Q`` without factorizing it; return whether it is dense."""
     if not is_dense_metric(Q, b):
         check_positive("Q (diagonal)", Q)
-        return lambda x: x / Q
-    if checking_values():
+        return False
+    if checking_values(Q):
         check_finite("Q", Q)
         scale = Q.detach().abs().amax(dim=(-2, -1), keepdim=True).clamp_min(1e-300)
         asym = (Q.detach() - Q.detach().mT).abs() / scale
         if bool((asym > 1e-6).any()):
             raise ValueError("Q must be symmetric positive definite, got a non-symmetric matrix")
-    factor, info = torch.linalg.cholesky_ex(Q)
-    if checking_values() and bool((info != 0).any()):
+    return True
+
+
+def _check_factorization(info: torch.Tensor) -> None:
+    """Raise ``ValueError`` naming ``Q`` when ``cholesky_ex``'s ``info`` reports a failure."""
+    if checking_values(info) and bool((info != 0).any()):
         raise ValueError("Q must be symmetric positive definite, Cholesky failed")
+
+
+def check_metric(Q: torch.Tensor, b: torch.Tensor) -> None:
+    """Raise ``ValueError`` naming ``Q`` unless it is a positive diagonal or an SPD matrix:
+    the checks of :func:`metric_solver`, for solvers that do not factorize ``Q`` themselves."""
+    if _check_metric_entries(Q, b) and checking_values(Q):
+        _check_factorization(torch.linalg.cholesky_ex(Q.detach())[1])
+
+
+def metric_solver(Q: torch.Tensor, b: torch.Tensor):
+    """Return ``x ↦ Q⁻¹x`` for ``x: (..., nv)``; factorizes a dense ``Q`` once (Cholesky).
+
+    Raises ``ValueError`` naming ``Q`` when it is not symmetric positive definite.
+    """
+    if not _check_metric_entries(Q, b):
+        return lambda x: x / Q
+    factor, info = torch.linalg.cholesky_ex(Q)
+    _check_factorization(info)
     return lambda x: torch.cholesky_solve(x.unsqueeze(-1), factor).squeeze(-1)
 
 
-def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
-    for name, x in (("Q", Q), ("b", b), ("jac", jac), ("phi", phi)):
+def _step_batch(Q, b, jac, phi) -> tuple[torch.Size, int]:
+    """Check the types, kinds and shapes of ``Q, b, jac, phi``; return their batch shape and m."""
+    tensors = {"Q": Q, "b": b, "jac": jac, "phi": phi}
+    for name, x in tensors.items():
         check_tensor(name, x)
+    check_same_kind("b", tensors)
     check_shape("b", b, "(..., nv)", b.dim() >= 1)
     nv = b.shape[-1]
     check_shape("jac", jac, f"(..., m, nv={nv})", jac.dim() >= 2 and jac.shape[-1] == nv)
@@ -89,24 +113,26 @@ def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
         "phi": phi.shape[:-1],
     }
     try:
-        batch = torch.broadcast_shapes(*batches.values())
+        return torch.broadcast_shapes(*batches.values()), m
     except RuntimeError:
         shapes = ", ".join(f"{k}{tuple(v)}" for k, v in batches.items())
         raise ValueError(
             f"batch shapes of Q, b, jac and phi must broadcast, got {shapes}"
         ) from None
-    for name, x, target in (
-        ("h", h, batch),
-        ("stiffness", stiffness, (*batch, m)),
-        ("damping", damping, (*batch, m)),
-    ):
+
+
+def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
+    """Check a step's arguments, raising ``ValueError`` (``TypeError`` for non-tensors) naming
+    the bad one. ``h``, ``stiffness`` and ``damping`` must broadcast to the batch shape of
+    ``Q, b, jac, phi`` (and its rows) without enlarging it, and lie on ``b``'s device."""
+    batch, m = _step_batch(Q, b, jac, phi)
+    scalars = {"h": h, "stiffness": stiffness, "damping": damping}
+    for name, x in scalars.items():
         if isinstance(x, torch.Tensor):
-            try:
-                torch.broadcast_shapes(x.shape, target)
-            except RuntimeError:
-                raise ValueError(
-                    f"{name} must broadcast to {tuple(target)}, got {tuple(x.shape)}"
-                ) from None
+            target = batch if name == "h" else (*batch, m)
+            check_broadcasts_to(name, x, target, "the batch shape of Q, b, jac and phi")
+    dimensioned = {k: x for k, x in scalars.items() if isinstance(x, torch.Tensor) and x.dim()}
+    check_same_kind("b", {"b": b, **dimensioned}, dtype=False)
     for name, x in (("b", b), ("jac", jac), ("phi", phi)):
         check_finite(name, x)
     check_positive("h", h)
@@ -171,9 +197,13 @@ def cf_velocity(
         b: ``(..., nv)`` linear term (forces, ``Kᵣu``, ``Mv/h``).
         jac: ``(..., m, nv)`` dual-cone rows J̃ (``Jⁿ + μJᵈ`` per contact and facet).
         phi: ``(..., m)`` row distances φ̃ [m] (each contact distance repeated per facet).
-        h: time step [s], a float or a tensor of the batch shape ``(...)``.
+        h: time step [s], a float or a tensor broadcastable to the batch shape ``(...)``.
         stiffness: K ≥ 0, a float or a tensor broadcastable to ``(..., m)``.
         damping: D ≥ 0 like ``stiffness``, or None for no damping.
+
+    The batch shape ``...`` is that of ``Q``, ``b``, ``jac`` and ``phi`` broadcast together:
+    ``h``, ``stiffness`` and ``damping`` may not enlarge it (a ``ValueError`` names them), and
+    ``Q``, ``jac`` and ``phi`` must share ``b``'s dtype and device.
         gamma: softplus sharpness γ > 0 [1/m-ish units of λ]; None for the exact ``max(·, 0)``.
 
     Returns:

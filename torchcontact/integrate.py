@@ -8,7 +8,14 @@ import torch
 
 from torchcontact.functional import Scalar
 from torchcontact.rotations import quaternion_exp, quaternion_multiply
-from torchcontact.validation import check_shape, check_tensor
+from torchcontact.validation import (
+    check_broadcasts_to,
+    check_finite,
+    check_positive,
+    check_shape,
+    check_tensor,
+    checking_values,
+)
 
 JOINT_SIZES = {"free": (7, 6), "ball": (4, 3), "slide": (1, 1), "hinge": (1, 1)}
 """(nq, nv) per joint type, as in MuJoCo."""
@@ -142,16 +149,42 @@ def _check_blocks(blocks: Mapping[str, int] | None, n_joints: int) -> dict[str, 
     return dict(blocks)
 
 
+def _check_integrate_inputs(q, v, h: Scalar, layout: JointLayout) -> None:
+    """Raise ``ValueError`` (``TypeError`` for non-tensors) naming the bad argument of
+    :func:`integrate`."""
+    check_tensor("q", q)
+    check_tensor("v", v)
+    check_shape("q", q, f"(..., {layout.nq})", q.dim() >= 1 and q.shape[-1] == layout.nq)
+    check_shape("v", v, f"(..., {layout.nv})", v.dim() >= 1 and v.shape[-1] == layout.nv)
+    try:
+        batch = torch.broadcast_shapes(q.shape[:-1], v.shape[:-1])
+    except RuntimeError:
+        raise ValueError(
+            f"batch shapes of q and v must broadcast, got q{tuple(q.shape[:-1])}, "
+            f"v{tuple(v.shape[:-1])}"
+        ) from None
+    if isinstance(h, torch.Tensor):
+        check_broadcasts_to("h", h, batch, "the batch shape of q and v")
+    check_positive("h", h)
+    check_finite("q", q)
+    check_finite("v", v)
+    if checking_values(q) and layout.quat_q.numel():
+        norms = torch.linalg.vector_norm(q.detach()[..., layout.quat_q.to(q.device)], dim=-1)
+        if not bool((norms > 0).all()):
+            raise ValueError("q must hold non-zero quaternions, got a zero quaternion")
+
+
 def integrate(q: torch.Tensor, v: torch.Tensor, h: Scalar, layout: JointLayout) -> torch.Tensor:
     """Advance ``q: (..., nq)`` by ``v: (..., nv)`` over ``h`` [s] (float or ``(...)`` tensor).
 
     Slide/hinge coordinates and free-joint positions move linearly; quaternions rotate by the
     body-frame angular velocity, ``q ← q ⊗ exp(h ω)``, and are renormalized (as MuJoCo does).
+
+    The batch shape is that of ``q`` and ``v`` broadcast together; ``h`` must broadcast to it
+    without enlarging it. Raises ``ValueError`` naming ``h`` unless it is positive and finite,
+    ``v`` when it holds NaN or Inf, and ``q`` when it does or holds a zero quaternion.
     """
-    check_tensor("q", q)
-    check_tensor("v", v)
-    check_shape("q", q, f"(..., {layout.nq})", q.dim() >= 1 and q.shape[-1] == layout.nq)
-    check_shape("v", v, f"(..., {layout.nv})", v.dim() >= 1 and v.shape[-1] == layout.nv)
+    _check_integrate_inputs(q, v, h, layout)
     if isinstance(h, torch.Tensor) and h.dim() > 0:
         h = h.unsqueeze(-1)
     device = q.device

@@ -30,7 +30,7 @@ from torchcontact.relaxed_qp import (
     relaxed_qp_velocity,
 )
 from torchcontact.stiffness import Constant, Parameterization, Relative, parameterization
-from torchcontact.validation import register
+from torchcontact.validation import check_finite, register
 
 
 class ContactModel(nn.Module):
@@ -103,7 +103,11 @@ class ComplementarityFree(ContactModel):
         self.facets = _check_facets(facets)
 
     def coefficients(self, contacts: Contacts, q=None):
-        """K(q) and D(q) (None without damping), each broadcastable to ``(..., nc·n_d)``."""
+        """K(q) and D(q) (None without damping), each broadcastable to ``(..., nc·n_d)``.
+
+        Raises ``ValueError`` naming ``q`` when a tensor ``q`` holds NaN or Inf."""
+        if isinstance(q, torch.Tensor):
+            check_finite("q", q)
         K = self.stiffness(contacts, self.facets, q)
         D = None if self.damping is None else self.damping(contacts, self.facets, q, K)
         return K, D

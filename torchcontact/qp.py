@@ -15,7 +15,7 @@ import osqp
 import scipy.sparse as sparse
 import torch
 
-from torchcontact.functional import Scalar, _check_step_inputs, is_dense_metric
+from torchcontact.functional import Scalar, _check_step_inputs, check_metric, is_dense_metric
 
 OSQP_SETTINGS = {
     "verbose": False,
@@ -57,8 +57,12 @@ def qp_solve(
 
     Returns:
         v: ``(..., nv)`` next velocity; beta: ``(..., m)`` row impulses β ≥ 0.
+
+    Raises ``ValueError`` naming the bad argument, as the complementarity-free step does for
+    the same inputs (a ``Q`` that is not a positive diagonal nor SPD among them).
     """
     _check_step_inputs(Q, b, jac, phi, h, 1.0, None, None)
+    check_metric(Q, b)
     if torch.is_grad_enabled() and any(
         isinstance(x, torch.Tensor) and x.requires_grad for x in (Q, b, jac, phi, h)
     ):

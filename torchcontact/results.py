@@ -31,15 +31,35 @@ def atomic_write(
     return path
 
 
+def json_safe(data: Any) -> Any:
+    """``data`` with every non-finite float (NaN, ±inf; Python, NumPy or in arrays) replaced by
+    None, recursively through dicts, lists and tuples; NumPy scalars and arrays (anything with
+    ``tolist``) become Python numbers and lists."""
+    if isinstance(data, Mapping):
+        return {key: json_safe(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [json_safe(value) for value in data]
+    if isinstance(data, (str, bool, int)) or data is None:
+        return data
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if hasattr(data, "tolist"):
+        return json_safe(data.tolist())
+    return data
+
+
 def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON (NumPy scalars and arrays become numbers and lists)."""
+    """Write ``data`` as indented, strict JSON: non-finite floats become ``null`` (see
+    :func:`json_safe`), so the file holds no ``NaN``/``Infinity`` literal; a value that still
+    is one raises ``ValueError`` before anything is written."""
 
     def default(x):
         if hasattr(x, "tolist"):
-            return x.tolist()
-        raise TypeError(f"cannot write {type(x).__name__} to JSON")
+            return json_safe(x.tolist())
+        raise TypeError(f"cannot write {type(x).__name__} to JSON ({path})")
 
-    return atomic_write(path, lambda f: json.dump(data, f, indent=2, default=default))
+    text = json.dumps(json_safe(data), indent=2, default=default, allow_nan=False)
+    return atomic_write(path, lambda f: f.write(text))
 
 
 def read_json(path: str | Path) -> Any:

@@ -211,8 +211,13 @@ def load_object(
         target = mesh.extents * scale
     else:
         target = _positive_vector("size", size, 3)
-    parts = _decompose(mesh, decomposition)
-    return _assemble(name or path.stem, parts, target, _positive_scalar("mass", mass))
+    mass = _positive_scalar("mass", mass)
+    try:
+        return _assemble(name or path.stem, _decompose(mesh, decomposition), target, mass)
+    except QhullError:  # every point on a plane, a line or one point
+        raise ValueError(
+            f"path must hold a solid mesh, but the points of {str(path)!r} enclose no volume"
+        ) from None
 
 
 # --- assembly ------------------------------------------------------------------------------

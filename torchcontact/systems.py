@@ -45,7 +45,8 @@ class QuasiDynamic(nn.Module):
 
     Call: ``system(u, robot_force=None)`` with ``u: (..., n_r)`` the robot's commanded
     displacement [m or rad] and ``robot_force: (..., n_r)`` τᵣ; returns ``Q: (nv,)`` and
-    ``b: (..., nv)``.
+    ``b: (..., nv)``. Raises ``ValueError`` naming ``u`` or ``robot_force`` when it holds NaN
+    or Inf.
     """
 
     def __init__(
@@ -94,6 +95,9 @@ class QuasiDynamic(nn.Module):
     def forward(self, u: torch.Tensor, robot_force: torch.Tensor | None = None):
         check_tensor("u", u)
         check_shape("u", u, f"(..., {self.n_robot})", u.dim() >= 1 and u.shape[-1] == self.n_robot)
+        check_finite("u", u)
+        if robot_force is not None:
+            check_finite("robot_force", robot_force)
         robot = self.robot_stiffness * u
         if robot_force is not None:
             robot = robot + robot_force

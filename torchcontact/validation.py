@@ -2,7 +2,8 @@
 
 Checks that read tensor values (NaN, signs, positive definiteness) cost a device sync, so they
 can be switched off for hot loops with :func:`set_validate_args`, as ``torch.distributions``
-does. Shape checks are free and always run. Nothing is checked while ``torch.compile`` traces.
+does. Shape checks are free and always run. No value is read while ``torch.compile`` traces,
+under ``torch.func`` transforms, nor of ``meta`` tensors.
 """
 
 from __future__ import annotations
@@ -32,13 +33,15 @@ def validate_args(value: bool) -> Iterator[None]:
         set_validate_args(previous)
 
 
-def checking_values() -> bool:
+def checking_values(*tensors: object) -> bool:
     """Whether value checks run now: not while compiling, nor under ``torch.func`` transforms
-    (vmap), whose batched tensors cannot be read on the host."""
+    (vmap), whose batched tensors cannot be read on the host, nor when any of ``tensors`` is a
+    ``meta`` tensor (shapes without values)."""
     return (
         _VALIDATE
         and not torch.compiler.is_compiling()
         and torch._C._functorch.maybe_current_level() is None
+        and not any(isinstance(x, torch.Tensor) and x.is_meta for x in tensors)
     )
 
 
@@ -48,7 +51,7 @@ def _values(x: torch.Tensor | float) -> torch.Tensor:
 
 def check_finite(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` when ``x`` holds NaN or Inf."""
-    if checking_values() and not bool(torch.isfinite(_values(x)).all()):
+    if checking_values(x) and not bool(torch.isfinite(_values(x)).all()):
         raise ValueError(f"{name} must be finite, got NaN or Inf")
 
 
@@ -56,7 +59,7 @@ def check_nonnegative(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` when ``x`` is NaN, Inf or negative."""
     check_finite(name, x)
     values = _values(x)
-    if checking_values() and values.numel() and bool((values < 0).any()):
+    if checking_values(x) and values.numel() and bool((values < 0).any()):
         raise ValueError(f"{name} must be non-negative, got a minimum of {float(values.min()):g}")
 
 
@@ -64,7 +67,7 @@ def check_positive(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` unless every value of ``x`` is finite and > 0."""
     check_finite(name, x)
     values = _values(x)
-    if checking_values() and values.numel() and not bool((values > 0).all()):
+    if checking_values(x) and values.numel() and not bool((values > 0).all()):
         raise ValueError(f"{name} must be positive, got a minimum of {float(values.min()):g}")
 
 
@@ -72,6 +75,38 @@ def check_shape(name: str, x: torch.Tensor, expected: str, ok: bool) -> None:
     """Raise ``ValueError`` naming ``name`` and the expected shape when ``ok`` is false."""
     if not ok:
         raise ValueError(f"{name} must have shape {expected}, got {tuple(x.shape)}")
+
+
+def check_broadcasts_to(name: str, x: torch.Tensor, target, what: str) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``x`` broadcasts to the shape ``target`` (that
+    of ``what``) without enlarging it: it may not add batch dimensions, nor grow any."""
+    target = torch.Size(target)
+    try:
+        ok = torch.broadcast_shapes(x.shape, target) == target
+    except RuntimeError:
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"{name} must broadcast to {tuple(target)} ({what}) without enlarging it, "
+            f"got {tuple(x.shape)}"
+        )
+
+
+def check_same_kind(reference: str, tensors: dict[str, object], dtype: bool = True) -> None:
+    """Raise ``ValueError`` naming the first tensor of ``tensors`` whose dtype (when ``dtype``)
+    or device differs from that of ``tensors[reference]``; non-tensors are skipped."""
+    ref = tensors[reference]
+    for name, x in tensors.items():
+        if not isinstance(x, torch.Tensor) or x is ref:
+            continue
+        if dtype and x.dtype != ref.dtype:
+            raise ValueError(
+                f"{name} must have the dtype of {reference} ({ref.dtype}), got {x.dtype}"
+            )
+        if x.device != ref.device:
+            raise ValueError(
+                f"{name} must be on the device of {reference} ({ref.device}), got {x.device}"
+            )
 
 
 def check_tensor(name: str, x: object) -> torch.Tensor:

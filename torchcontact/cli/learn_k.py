@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import math
 import os
 from dataclasses import asdict, fields
 from pathlib import Path
@@ -32,8 +33,10 @@ from torchcontact.checkpoint import (
     constant_model,
     save_checkpoint,
 )
+from torchcontact.cli import writable_directory, writable_file
+from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.learn.data import collect, load
+from torchcontact.learn.data import MANIFEST, collect, load
 from torchcontact.learn.evaluate import (
     log_grid,
     one_step_error,
@@ -117,8 +120,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--trajectories must be >= 3 (train, val, test), got {args.trajectories}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
-    if not args.distance_scale > 0:
-        parser.error(f"--distance-scale must be positive, got {args.distance_scale}")
+    if not 0 < args.distance_scale < math.inf:
+        parser.error(f"--distance-scale must be positive and finite, got {args.distance_scale}")
+    if args.noise is not None and not 0 <= args.noise < math.inf:
+        parser.error(
+            f"--noise must be a non-negative finite fraction of the control bound, got {args.noise}"
+        )
+    _check_fit_options(parser, args)
+    _check_scene(parser, args)
     args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
     if args.actions is None:
         args.actions = "random" if args.scene == BOX_PUSHING else "mpc"
@@ -127,14 +136,53 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if args.steps <= args.horizon:
         parser.error(f"--steps must exceed --horizon ({args.horizon}), got {args.steps}")
     low, high, count = args.sweep
-    if not (0 < low < high) or count < 2 or count != int(count):
-        parser.error(f"--sweep needs 0 < LOW < HIGH and an integer N >= 2, got {args.sweep}")
+    if not (0 < low < high < math.inf) or count < 2 or count != int(count):
+        parser.error(f"--sweep needs finite 0 < LOW < HIGH and an integer N >= 2, got {args.sweep}")
     args.grid = log_grid(low, high, int(count))
     name = f"{args.scene}_{Path(args.object).stem}"
     args.results = args.out / name
     if args.data is None:
         args.data = args.out / "data" / f"{name}_{args.actions}_steps{args.steps}_seed{args.seed}"
     return args
+
+
+def _check_fit_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The checks of :class:`FitConfig` on the options that become its fields."""
+    names = [f.name for f in fields(FitConfig) if f.name != "initial_stiffness"]
+    try:
+        FitConfig(**{name: getattr(args, name) for name in names})
+    except ValueError as error:
+        field, _, rest = str(error).partition(" ")
+        parser.error(f"--{field.replace('_', '-')} {rest}")
+
+
+def _check_scene(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--object`` and ``--task`` against the scene's suite (as :func:`make_scene` does)."""
+    if args.scene == BOX_PUSHING:
+        if args.object != "cube" or args.task not in (None, "push"):
+            parser.error(
+                f"--object and --task of box_pushing are cube and push only, got "
+                f"{args.object!r}, {args.task!r}"
+            )
+        return
+    env = environment(args.scene)
+    tasks = [t for t, o in env.pairs if o == args.object]
+    if not tasks:
+        parser.error(f"--object must be one of {env.objects} for {args.scene}, got {args.object!r}")
+    if args.task is not None and args.task not in tasks:
+        parser.error(f"--task must be one of {tasks} for {args.object}, got {args.task!r}")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Check, before anything runs, that every output can be written: ``--out`` (created),
+    the results folder, the dataset folder ``--data`` and ``--json``."""
+    writable_directory("--out", args.out)
+    writable_directory("--out", args.results, create=False)
+    writable_directory("--data", args.data, create=False)
+    if (args.data / MANIFEST).is_dir():
+        raise ValueError(f"--data must be a dataset directory, {args.data / MANIFEST} is a folder")
+    if args.json is not None:
+        writable_file("--json", args.json)
 
 
 def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
@@ -298,6 +346,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     torch.set_num_threads(1)
     args = parse_args(argv)
+    check_outputs(args)
     record = run(args)
     write_json(args.results / "results.json", record)
     if args.json is not None:

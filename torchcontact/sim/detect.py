@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import PAD_DISTANCE, Contacts
+from torchcontact.validation import checking_values
 
 OVERFLOW_POLICIES = ("error", "deepest")
 
@@ -39,7 +40,8 @@ class ContactDetector:
 
     Args:
         model: the scene's ``MjModel`` (copied, not modified).
-        bodies: names or ids of the bodies whose contacts are modelled.
+        bodies: names or ids of the bodies whose contacts are modelled; a single name (a
+            string) or id stands for that one body.
         slots: contact slots nc in the output (padding marked inactive).
         mu: friction coefficient override; None takes MuJoCo's combined sliding friction.
         margin: detection distance [m] for the relevant geoms; None keeps the model's.
@@ -58,7 +60,7 @@ class ContactDetector:
     def __init__(
         self,
         model: mujoco.MjModel,
-        bodies: Sequence[str | int],
+        bodies: Sequence[str | int] | str | int,
         slots: int,
         mu: float | None = None,
         margin: float | None = None,
@@ -78,6 +80,8 @@ class ContactDetector:
             raise ValueError(f"margin must be a non-negative finite number or None, got {margin!r}")
         if overflow not in OVERFLOW_POLICIES:
             raise ValueError(f"overflow must be one of {OVERFLOW_POLICIES}, got {overflow!r}")
+        if isinstance(bodies, (str, int, np.integer)):
+            bodies = [bodies]
         if not bodies:
             raise ValueError("bodies must name at least one body whose contacts are modelled")
         self.model = copy.deepcopy(model)
@@ -93,19 +97,33 @@ class ContactDetector:
         self.dtype = dtype or torch.get_default_dtype()
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         self._jacp = np.zeros((3, model.nv))
-        self.found = 0
+        self.found: int | np.ndarray = 0
         """Relevant contacts found by the last detection (after ``per_pair``, before any
-        ``"deepest"`` truncation)."""
+        ``"deepest"`` truncation): an ``int`` for one state (``qpos (nq,)`` or
+        :meth:`from_data`), an integer array of the batch shape ``...`` for ``qpos (..., nq)``
+        (the count of each state, so ``found.max()`` is the most any state needs)."""
 
     def __call__(self, qpos) -> Contacts:
-        """Contacts at ``qpos: (nq,)`` or a batch ``(..., nq)`` (array or tensor)."""
+        """Contacts at ``qpos: (nq,)`` or a batch ``(..., nq)`` (array or tensor).
+
+        Sets :attr:`found`. Raises ``ValueError`` naming ``qpos`` when its shape is wrong or,
+        with value checks on (:func:`~torchcontact.validation.set_validate_args`), it holds NaN
+        or Inf.
+        """
         qpos = np.asarray(
             qpos.detach().cpu() if isinstance(qpos, torch.Tensor) else qpos, dtype=np.float64
         )
         if qpos.ndim == 0 or qpos.shape[-1] != self.model.nq:
             raise ValueError(f"qpos must have shape (..., {self.model.nq}), got {qpos.shape}")
+        if checking_values() and not np.isfinite(qpos).all():
+            raise ValueError("qpos must be finite, got NaN or Inf")
         flat = qpos.reshape(-1, self.model.nq)
-        arrays = [self._detect(q) for q in flat]
+        arrays, found = [], []
+        for q in flat:
+            arrays.append(self._detect(q))
+            found.append(self.found)
+        if qpos.ndim > 1:
+            self.found = np.array(found, dtype=int).reshape(qpos.shape[:-1])
         padding = self._padding(self.model.nv)
         batched = {
             key: (np.stack([a[key] for a in arrays]) if arrays else value[None][:0]).reshape(
