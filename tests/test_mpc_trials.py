@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+import trimesh
 
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
@@ -459,3 +460,29 @@ def test_the_summary_of_a_pair_without_success_is_written_with_null(tmp_path, fa
     read = json.loads(text, parse_constant=refuse)
     assert read["pos_err_mm_mean_success"] is None and read["pairs"]["p"]["trials"] == 2
     assert read["pos_err_mm_mean"] == pytest.approx(fast_record["pos_err_mm"])
+
+
+def test_a_resumed_sweep_handles_a_truncated_record_other_settings_and_a_changed_mesh(tmp_path):
+    """The three ways a sweep's folder goes stale, in one sweep of a built-in object and a
+    mesh: a changed mesh and other settings refuse the run before anything runs; a truncated
+    record is set aside and rerun."""
+    mesh = tmp_path / "block.stl"
+    trimesh.creation.box([0.05, 0.04, 0.03]).export(mesh)
+    settings = MPCSettings(max_iter=3, compile=False)
+    pairs = [("in-hand", "cube"), ("in-hand", str(mesh))]
+    configs = trial_configs("trifinger", pairs, range(1), settings, max_steps=2)
+    out = tmp_path / "out"
+    _run(configs, out)
+    cube, block = (out / "trials" / f"{c.name}.json" for c in configs)
+    cube.write_text(cube.read_text()[:40])  # truncated
+    trimesh.creation.box([0.05, 0.04, 0.035]).export(mesh)  # changed at the same path
+    with pytest.raises(ValueError, match="object_sha256"):
+        _run(configs, out)
+    assert len(cube.read_text()) == 40  # refused before anything ran: the record untouched
+    trimesh.creation.box([0.05, 0.04, 0.03]).export(mesh)  # the mesh as it was
+    _, seen = _run(configs, out)
+    assert sorted(seen) == [(0, False), (0, True)]  # the cube rerun, the block reused
+    assert list((out / "trials").glob("*.corrupt-*.json"))
+    longer = trial_configs("trifinger", pairs, range(1), settings, max_steps=3)
+    with pytest.raises(ValueError, match="max_steps 2 → 3"):
+        _run(longer, out)
