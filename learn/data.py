@@ -45,7 +45,7 @@ from tqdm.auto import tqdm
 from torchcontact.contacts import Contacts
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
-from torchcontact.parallel import BACKENDS, parallel_map
+from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.results import atomic_write, read_json, write_json
 from torchcontact.systems import QuasiDynamic
 
@@ -214,7 +214,7 @@ def collect(
             tasks); each is saved here as it arrives, the same as a serial run's.
     """
     _check_collect(scene, trajectories, steps, actions, seed, noise, planner)
-    _check_workers(workers, backend, address)
+    check_backend(workers, backend, address)
     directory = Path(directory)
     built = make_scene(scene, obj, task)
     manifest = _new_manifest(built, scene, obj, actions, noise, steps, seed)
@@ -280,16 +280,6 @@ def _check_collect(scene, trajectories, steps, actions, seed, noise, planner) ->
         raise ValueError(f"noise must be a non-negative finite number or None, got {noise!r}")
     if actions != "random" and planner is None:
         raise ValueError(f"planner is required by actions={actions!r}")
-
-
-def _check_workers(workers, backend: str, address: str | None) -> None:
-    """The checks of :func:`~torchcontact.parallel.parallel_map`, made before anything runs."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    if address is not None and backend != "ray":
-        raise ValueError(f"address is for backend='ray', got backend={backend!r}")
 
 
 def _kind(actions: str, index: int) -> str:

@@ -36,7 +36,7 @@ from torchcontact.mpc.trials import (
     run_trials,
     trial_configs,
 )
-from torchcontact.parallel import BACKENDS, RAY_EXTRA, import_ray
+from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
 from torchcontact.shapes import COLLISIONS, load_object
@@ -156,13 +156,10 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    if args.address is not None and args.backend != "ray":
-        parser.error("--address is for --backend ray")
-    if args.backend == "ray":
-        try:
-            import_ray()
-        except ImportError as error:
-            parser.error(str(error))
+    try:
+        check_backend(args.workers, args.backend, args.address)
+    except (ValueError, ImportError) as error:
+        parser.error(f"--backend/--address/--workers: {error}")
     custom = args.env == CUSTOM
     if custom != (args.robot is not None):
         parser.error("--robot is required by, and only for, the custom environment")

@@ -45,6 +45,15 @@ def parallel_map(
         address: a Ray cluster's address (``ray`` only); None starts a local instance.
         on_retry: ``(index, error)`` when a Ray task's worker died and the job is resubmitted.
     """
+    check_backend(workers, backend, address)
+    if backend == "ray":
+        return _ray_map(function, items, workers, address, on_retry)
+    return _local_map(function, items, workers)
+
+
+def check_backend(workers: int, backend: str, address: str | None) -> None:
+    """Refuse arguments :func:`parallel_map` cannot use (before anything runs): ``ValueError``
+    naming the argument, or ``ImportError`` naming the extra when Ray is asked for and missing."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
@@ -52,8 +61,7 @@ def parallel_map(
     if address is not None and backend != "ray":
         raise ValueError(f"address is for backend='ray', got backend={backend!r}")
     if backend == "ray":
-        return _ray_map(function, items, workers, address, on_retry)
-    return _local_map(function, items, workers)
+        import_ray()
 
 
 def _local_map(function, items, workers: int) -> Iterator[tuple[int, Any]]:

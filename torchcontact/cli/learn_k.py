@@ -49,7 +49,7 @@ from torchcontact.learn.policies import ACTIONS
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.parallel import BACKENDS, RAY_EXTRA, import_ray
+from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.results import write_csv, write_json
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
@@ -109,13 +109,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     for name in positive:
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    if args.address is not None and args.backend != "ray":
-        parser.error("--address is for --backend ray")
-    if args.backend == "ray":
-        try:
-            import_ray()
-        except ImportError as error:
-            parser.error(str(error))
+    try:
+        check_backend(args.workers, args.backend, args.address)
+    except (ValueError, ImportError) as error:
+        parser.error(f"--backend/--address/--workers: {error}")
     if args.trajectories < 3:
         parser.error(f"--trajectories must be >= 3 (train, val, test), got {args.trajectories}")
     if args.seed < 0:
