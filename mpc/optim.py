@@ -267,7 +267,7 @@ ROUNDS_PER_CALL = 4
 """Rounds one compiled call runs with ``compile_fun``. A traced objective's tensors are tiny,
 so a call costs mostly its fixed overhead (guards, argument flattening, the host sync of
 the flags), which several rounds share; 4 chosen by measurement, at a longer compile time
-(see docs/journal.md, "Three-fingertip MPC").
+(see docs/experiments.md, "Speed").
 A problem that stops within a call stays frozen for the call's remaining rounds (the iterates
 are those of one round per call); the call's ``budget`` stops every problem after ``max_iter``
 rounds."""
@@ -305,7 +305,7 @@ TRACED_FUN_OPTIONS = {"cpp_wrapper": True, "post_grad_fusion_options": {"decompo
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
 (buffer allocation and views) than in its kernels; a C++ wrapper makes the round cheaper
-(measured, see docs/journal.md, "Three-fingertip MPC"), at a longer first compilation (cached
+(measured, see docs/experiments.md, "Speed"), at a longer first compilation (cached
 on disk like the rest). Inductor's ``decompose_mm_pass`` writes small matrix products as
 pointwise products and sums, which fuse with their neighbours, instead of external BLAS calls
 of a few µs each, such as pytorch-kinematics' 4×4 transforms (:data:`SMALL_PRODUCTS`)."""

@@ -51,7 +51,7 @@ from torchcontact.sim.plant import as_pose
 
 SCENES_VERSION = 7
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
-resumed sweep reruns trials from older versions (docs/journal.md lists what each changed)."""
+resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
 
 DEFAULT_MODEL = "paper"
 """The contact model the MPC plans through unless told otherwise."""

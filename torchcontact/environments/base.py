@@ -28,7 +28,7 @@ BENCHMARK_COLLISION = "hull"
 """How the suites' objects collide by default: as their convex hulls, as the paper's objects
 do (each is one mesh geom in its reference scenes, which MuJoCo collides through its hull).
 With the cavities of the bowl, cup, mug and torus open, the TriFinger sampler can set such an
-object down around a resting fingertip, which then stays caught (docs/journal.md)."""
+object down around a resting fingertip, which then stays caught (docs/experiments.md)."""
 
 REFERENCE_MASS = 0.01
 """[kg] The object mass the paper's metrics εMₒ/h² are stated for (its 10 g objects)."""

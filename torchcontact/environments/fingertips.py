@@ -28,7 +28,7 @@ PAPER_STIFFNESS = 1.0
 
 STIFFNESS = 4.64
 """The default K: ``torchcontact learn-k --scene fingertips --object cube``'s best constant K
-on the cube's MPC rollouts, chosen by measurement (docs/journal.md, "Three-fingertip MPC")."""
+on the cube's MPC rollouts, chosen by measurement (docs/experiments.md, "Three-fingertip MPC")."""
 
 PRESETS = {
     "fast": MPCSettings(max_iter=5),

@@ -24,7 +24,7 @@ HAND_METRIC = (50.0, 50.0, 50.0, 0.1, 0.1, 0.1)
 
 PAPER_OBJECT_MASS = 0.01
 """[kg] The object mass of the paper's hand models, whatever the plant's object weighs. Kept for
-the built-in hands by measurement (docs/journal.md, "Library structure"): a heavier modelled
+the built-in hands by measurement (docs/experiments.md, "Library structure"): a heavier modelled
 object needs its K chosen with it."""
 
 
@@ -174,7 +174,7 @@ ALLEGRO_ENV = HandEnvironment(
         stiffness=0.5,
         control_bound=0.2,
         # position weight 300, not the paper's 100: success counts orientation only, and with
-        # 100 the MPC turned objects off the palm (docs/journal.md, "TriFinger and Allegro MPC")
+        # 100 the MPC turned objects off the palm (docs/experiments.md, "TriFinger and Allegro MPC")
         cost=ManipulationCost(contact=1.0, grasp=0.0, control=0.1, position=300.0),
         object_mass=PAPER_OBJECT_MASS,
     ),

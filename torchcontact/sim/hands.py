@@ -176,7 +176,7 @@ TRIFINGER = Hand(
     camera_position=(0.0, -0.45, 0.45),
     object_overrides={"cube": ObjectOverride(ground_friction=0.9)},
     # tips hovering just off an object left the MPC without rows to push with; 5 mm chosen by
-    # measurement (docs/journal.md, "TriFinger and Allegro MPC")
+    # measurement (docs/experiments.md, "TriFinger and Allegro MPC")
     contact_margin=0.005,
     tip_sites=("tip0", "tip1", "tip2"),  # the file's sites are tip0..tip2, not named *tip
 )
@@ -212,7 +212,7 @@ ALLEGRO = Hand(
     elliptic=True,
     impratio=10.0,
     # contact_margin stays 0: under the paper's soft K = 0.5 a row's force falls off over
-    # 1/(γK) = 2 cm, so hovering links would push the modelled object (docs/journal.md,
+    # 1/(γK) = 2 cm, so hovering links would push the modelled object (docs/experiments.md,
     # "TriFinger and Allegro MPC")
     # the reference scenes: a heavier cube and stick, binoculars with friction 0.9, and three
     # meshes scaled smaller than on the TriFinger (whose scale the listed sizes are)
