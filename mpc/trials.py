@@ -43,6 +43,7 @@ from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ContactModel, RelaxedQP, contact_model
+from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.parallel import parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
@@ -440,6 +441,10 @@ def _run_job(job: _Job) -> TrialRecord:
         # reaches its recompile limit after a few objects and silently runs eager from then on.
         torch._dynamo.reset()
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
+        if job.config.compile:
+            quiet_known_inductor_warnings()
+            scene = f"{job.config.env} with {Path(job.config.object).stem}"
+            tqdm.write(compile_notice(scene))
     frames = [] if job.video is not None else None
     env, plant, mpc = _CACHE["env"], _CACHE["plant"], _CACHE["mpc"]
     record = run_trial(job.config, env, plant, mpc, frames, inputs=job.inputs)

@@ -1,0 +1,40 @@
+"""What the first compiled MPC step tells its user: one line saying what happens, and none of
+Inductor's warnings known to be harmless here."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import warnings
+
+HARMLESS_INDUCTOR_LOGS = ("is missing a c-shim implementation, using proxy executor as fallback",)
+"""Inductor log messages that say it generated a slower path for an op (here the triangular
+solve of the L-BFGS memory): the result is the same, and the MPC's speed is measured with it."""
+
+HARMLESS_WARNINGS = (r"`torch\._prims_common\.check` is deprecated",)
+"""Deprecation warnings raised inside torch's own lowering code, not by ours."""
+
+
+class _DropHarmless(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        return not any(text in message for text in HARMLESS_INDUCTOR_LOGS)
+
+
+@functools.cache
+def quiet_known_inductor_warnings() -> None:
+    """Filter exactly the messages of :data:`HARMLESS_INDUCTOR_LOGS` and
+    :data:`HARMLESS_WARNINGS` (once per process); every other warning still shows."""
+    logging.getLogger("torch._inductor.ir").addFilter(_DropHarmless())
+    for pattern in HARMLESS_WARNINGS:
+        warnings.filterwarnings("ignore", message=pattern, category=FutureWarning)
+
+
+def compile_notice(scene: str) -> str:
+    """The line printed before a scene's first compiled step."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    return (
+        f"compiling the MPC for {scene}: on this machine's first run (a minute or two), "
+        f"then loaded from the cache in {cache_dir()}"
+    )
