@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
+from torchcontact import generated
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import writable_directory, writable_file
 from torchcontact.environments import ENVIRONMENTS, environment
@@ -33,13 +34,16 @@ from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
     MPC_MODELS,
     TrialConfig,
+    object_facts,
     run_trials,
     trial_configs,
 )
+from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import write_csv, write_json
 from torchcontact.shapes import COLLISIONS, load_object
+from torchcontact.shipped import SHIPPED, resolve_learned, shipped_path
 
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
@@ -52,8 +56,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("env", choices=sorted([*ENVIRONMENTS, CUSTOM]), help="the environment")
     parser.add_argument("--task", default="all", help="a task of the environment or 'all'")
     parser.add_argument(
-        "--object", default="cube", help="an object name, 'all', or (hands) a mesh file"
+        "--object",
+        default="cube",
+        help="a built-in object, 'all', or (hands, custom) a mesh file in metres, a generated "
+        f"object random-SEED, or a set of them: random:N (N objects from seed "
+        f"{generated.REPORT_SEEDS}, the reported set) or random:A-B (seeds A to B; tune on "
+        f"seeds below {generated.REPORT_SEEDS})",
     )
+    parser.add_argument(
+        "--object-size", type=float, default=None, help="largest extent [m] to scale it to"
+    )
+    parser.add_argument(
+        "--object-scale",
+        type=float,
+        default=None,
+        help="factor on its own size (0.001 for a mesh file in millimetres)",
+    )
+    parser.add_argument("--object-mass", type=float, default=None, help="[kg]; the MPC models it")
+    parser.add_argument("--object-friction", type=float, default=None, help="sliding μ")
     parser.add_argument("--trials", type=int, default=TRIALS, help="seeds 0…trials−1")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument(
@@ -92,7 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
         "differentiated through its KKT conditions (the paper's implicit-MPC baseline)",
     )
     parser.add_argument(
-        "--stiffness", type=float, default=None, help="K (paper model); default the env's"
+        "--stiffness",
+        type=_stiffness,
+        default=None,
+        help="the paper model's K: 'shipped' (the environment's learned K(q), D(q) shipped "
+        "with the package, the default where it has one), 'paper' (the paper's constant K) "
+        "or a number",
     )
     parser.add_argument(
         "--relaxation",
@@ -135,14 +160,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _stiffness(text: str) -> float | str:
+    """``--stiffness``: ``"shipped"``, ``"paper"`` or a positive number."""
+    if text in (SHIPPED, "paper"):
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be 'shipped', 'paper' or a number, got {text!r}"
+        ) from None
+    if not 0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+    return value
+
+
 def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Reject option combinations that mean nothing, naming the option."""
     qp = args.model == "relaxed_qp"
-    if args.stiffness is not None and (qp or not 0 < args.stiffness < math.inf):
-        parser.error(
-            f"--stiffness must be positive and finite and is for the paper model, "
-            f"got {args.stiffness}"
-        )
+    if args.stiffness is not None and qp:
+        parser.error(f"--stiffness is for the paper model, got {args.stiffness}")
     if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
         parser.error(f"--relaxation must be positive and is for relaxed_qp, got {args.relaxation}")
     if args.learned is not None and (qp or args.stiffness is not None):
@@ -179,9 +216,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         env = environment(args.env, args.robot, args.tips)
         # a mesh file by its absolute path: one record name however it was typed
         args.pairs = [
-            (task, obj if obj in env.objects else str(Path(obj).resolve()))
+            (task, str(Path(obj).resolve()) if is_mesh_file(obj) else obj)
             for task, obj in env.select(args.task, args.object)
         ]
+        args.object_options = ObjectOptions(
+            args.object_size, args.object_scale, args.object_mass, args.object_friction
+        )
+        if not env.user_meshes and not args.object_options.is_default:
+            raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
     except ValueError as error:
         parser.error(str(error))
     overrides = {
@@ -200,6 +242,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.relaxation = PAPER_RELAXATION if args.relaxation is None else args.relaxation
     elif args.learned is not None:
         args.learned = str(args.learned.resolve())
+    elif args.stiffness == SHIPPED or (args.stiffness is None and env.ships_model):
+        if not env.ships_model:
+            parser.error(f"--stiffness shipped: {args.env} ships no model")
+        args.learned, args.stiffness = SHIPPED, None
+    elif args.stiffness == "paper":
+        args.stiffness = env.stiffness
     elif args.stiffness is None:
         args.stiffness = env.default_stiffness
     args.env_description = env
@@ -212,12 +260,13 @@ def _load_inputs(args: argparse.Namespace, env) -> None:
     trial: ``ValueError`` naming the option when one is not what it should be."""
     if args.learned is not None:
         try:
-            load_checkpoint(args.learned)
+            load_checkpoint(resolve_learned(args.learned, args.env))
         except ValueError as error:
             raise ValueError(f"--learned: {error}") from None
-    for obj in sorted({obj for _, obj in args.pairs if obj not in env.objects}):
+    options = args.object_options
+    for obj in sorted({obj for _, obj in args.pairs if is_mesh_file(obj)}):
         try:
-            load_object(obj, 0.1, decomposition="hull")
+            load_object(obj, options.size, decomposition="hull", scale=options.scale)
         except ValueError as error:
             raise ValueError(f"--object {obj!r} must be a usable mesh file: {error}") from None
 
@@ -236,9 +285,28 @@ def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
 def _about(args: argparse.Namespace) -> str:
     if args.model == "relaxed_qp":
         return f"relaxed QP, paper's κ = {args.relaxation:g}"
+    if args.learned == SHIPPED:
+        return f"learned K(q), D(q) shipped with the package: {shipped_path(args.env)}"
     if args.learned is not None:
         return f"learned K(q), D(q) from {args.learned}"
     return f"K = {args.stiffness:g}"
+
+
+def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
+    """One line per object of the run (up to ``at_most``; a count beyond): the size, mass,
+    friction and collision shape its plant uses."""
+    env, objects = args.env_description, list(dict.fromkeys(obj for _, obj in args.pairs))
+    lines = []
+    for obj in objects[:at_most]:
+        facts = object_facts(env.make_plant(obj, args.collision, args.object_options))
+        extent = " × ".join(f"{100 * x:.1f}" for x in facts["object_extent"])
+        lines.append(
+            f"object {Path(obj).name}: {extent} cm, {1e3 * facts['object_mass_kg']:g} g, "
+            f"friction {facts['object_friction_mu']:g}, collides as {facts['object_collision']}"
+        )
+    if len(objects) > at_most:
+        lines.append(f"... and {len(objects) - at_most} more objects (each record stores its own)")
+    return lines
 
 
 def write_summary(args: argparse.Namespace, records: list[dict], out: Path) -> dict:
@@ -297,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json is not None:
         writable_file("--json", args.json)
     print(f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}")
+    for line in describe_objects(args):
+        print(line)
     print(report.TABLE_HEADER)
     records = run_trials(
         configs,

@@ -48,9 +48,11 @@ from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.parallel import parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
+from torchcontact.objects import ObjectOptions, is_mesh_file
+from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
 
-SCENES_VERSION = 7
+SCENES_VERSION = 8
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
 resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
 
@@ -74,6 +76,10 @@ LEGACY_DEFAULTS = {
     "robot": None,
     "tips": None,
     "cost": None,
+    "object_size": None,
+    "object_scale": None,
+    "object_mass": None,
+    "object_friction": None,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -106,14 +112,13 @@ FINITE_KEYS = (
 counts as corrupt on reading."""
 
 
+OBJECT_FACTS = ("object_extent", "object_mass_kg", "object_friction_mu", "object_collision")
+"""Record fields describing the object a trial used (its bounding box [m], mass [kg], sliding
+friction, collision shape); None in records written before them."""
+
+
 class RecordMismatch(ValueError):
     """A saved record at a trial's path was made with other settings or inputs than the run's."""
-
-
-def is_mesh_file(obj: str) -> bool:
-    """Whether a trial's ``object`` is a mesh file path (built-in object names have no suffix,
-    as :meth:`~torchcontact.environments.base.Environment.select` tells them apart)."""
-    return bool(Path(obj).suffix)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -150,11 +155,14 @@ class TrialConfig:
             (:class:`~torchcontact.environments.presets.MPCSettings`).
         stiffness: K of the paper's model (None with ``learned`` or the QP).
         model: one of :data:`MPC_MODELS`; relaxation: the paper's κ of the relaxed QP.
-        learned: a checkpoint whose K(q), D(q) the MPC plans with.
+        learned: a checkpoint whose K(q), D(q) the MPC plans with, or ``"shipped"``: the
+            environment's shipped model (:mod:`torchcontact.shipped`).
         planner: the planner's registered name.
         scenes: :data:`SCENES_VERSION`; collision: how the object collides.
         robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``).
         cost: a cost's registered name, None for the environment's.
+        object_size, object_scale, object_mass, object_friction: the user's settings of the
+            object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's.
     """
 
     env: str
@@ -178,6 +186,17 @@ class TrialConfig:
     robot: str | None = None
     tips: tuple[str, ...] | None = None
     cost: str | None = None
+    object_size: float | None = None
+    object_scale: float | None = None
+    object_mass: float | None = None
+    object_friction: float | None = None
+
+    @property
+    def object_options(self) -> ObjectOptions:
+        """The user's settings of the object."""
+        return ObjectOptions(
+            self.object_size, self.object_scale, self.object_mass, self.object_friction
+        )
 
     @property
     def settings(self) -> MPCSettings:
@@ -188,7 +207,7 @@ class TrialConfig:
     @property
     def variant(self) -> str:
         """The environment tagged with a non-default model: ``trifinger_relaxed_qp``."""
-        if self.learned is not None:
+        if self.learned is not None and self.learned != SHIPPED:
             return f"{self.env}_learned"
         return self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
 
@@ -242,6 +261,10 @@ class TrialRecord:
     contacts_found_mean: float
     contacts_found_max: int
     steps_with_dropped_contacts: int
+    object_extent: list[float] | None = None
+    object_mass_kg: float | None = None
+    object_friction_mu: float | None = None
+    object_collision: str | None = None
     inputs: dict | None = None
 
     def to_dict(self) -> dict:
@@ -254,7 +277,8 @@ class TrialRecord:
         """The record of :meth:`to_dict` (its configuration completed by legacy defaults; no
         ``inputs`` in records written before them)."""
         names = [f.name for f in fields(cls) if f.name not in ("config", "inputs")]
-        outcome = {name: record[name] for name in names}
+        outcome = {name: record[name] for name in names if name not in OBJECT_FACTS}
+        outcome.update({name: record.get(name) for name in OBJECT_FACTS})
         config = TrialConfig(**stored_config(record))
         return cls(config=config, inputs=record.get("inputs"), **outcome)
 
@@ -269,14 +293,18 @@ def trial_configs(
 ) -> list[TrialConfig]:
     """Configurations of ``seeds`` on each (task, object) of ``pairs`` in environment ``env``
     (registered name): solver ``settings`` (default the environment's default preset),
-    ``max_steps`` (default its criterion's), the paper model at the environment's default K
-    unless ``options`` (other :class:`TrialConfig` fields) say otherwise."""
+    ``max_steps`` (default its criterion's), and the environment's shipped model (or, where it
+    ships none, the paper model at its default K) unless ``options`` (other
+    :class:`TrialConfig` fields) say otherwise."""
     description = environment(env, options.get("robot"), options.get("tips"))
     settings = description.preset() if settings is None else settings
     if options.get("model") == "relaxed_qp":
         options.setdefault("relaxation", PAPER_RELAXATION)
-    elif not options.get("learned"):
-        options.setdefault("stiffness", description.default_stiffness)
+    elif options.get("stiffness") is None and options.get("learned") is None:
+        if description.ships_model:
+            options["learned"] = SHIPPED
+        else:
+            options["stiffness"] = description.default_stiffness
     options.setdefault("stiffness", None)
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
@@ -304,6 +332,8 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
     inputs = {}
     for key, field in INPUT_FILES.items():
         path = getattr(config, field)
+        if field == "learned":
+            path = resolve_learned(path, config.env)
         if path is None or (field == "object" and not is_mesh_file(path)):
             inputs[key] = None
             continue
@@ -321,7 +351,7 @@ def trial_model(config: TrialConfig, h: float) -> ContactModel:
     if config.learned is not None:
         from torchcontact.checkpoint import load_model
 
-        return load_model(config.learned).requires_grad_(False)
+        return load_model(resolve_learned(config.learned, config.env)).requires_grad_(False)
     if config.model == "relaxed_qp":
         kappa = PAPER_RELAXATION if config.relaxation is None else config.relaxation
         return RelaxedQP(paper_relaxation(h, kappa), facets=4)
@@ -333,7 +363,7 @@ def trial_model(config: TrialConfig, h: float) -> ContactModel:
 def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplicitMPC]:
     """The environment, the plant and the MPC of ``config``."""
     env = environment(config.env, config.robot, config.tips)
-    plant = env.make_plant(config.object, config.collision)
+    plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, config.cost
@@ -401,6 +431,7 @@ def run_trial(
         contacts_found_mean=float(np.mean(found)),
         contacts_found_max=max(found),
         steps_with_dropped_contacts=sum(n > slots for n in found),
+        **object_facts(plant),
         inputs=inputs,
         **times,
     )
@@ -410,6 +441,18 @@ def run_trial(
             f"trial {config.name} ended with non-finite {', '.join(bad)}; no record written"
         )
     return record
+
+
+def object_facts(plant) -> dict:
+    """The :data:`OBJECT_FACTS` of ``plant``'s object."""
+    obj = plant.object
+    shape = "hull" if obj.collide_hull or len(obj.parts) == 1 else f"{len(obj.parts)} parts"
+    return {
+        "object_extent": [float(x) for x in obj.size],
+        "object_mass_kg": float(obj.mass),
+        "object_friction_mu": float(plant.object_friction),
+        "object_collision": shape,
+    }
 
 
 @dataclass(frozen=True)
@@ -461,6 +504,7 @@ _CONFIG_KINDS = {
     **dict.fromkeys(("seed", "max_steps", "max_iter", "memory", "horizon", "scenes"), "int"),
     "compile": "bool",
     **dict.fromkeys(("stiffness", "relaxation"), "number?"),
+    **dict.fromkeys(("object_size", "object_scale", "object_mass", "object_friction"), "number?"),
     **dict.fromkeys(("learned", "robot", "cost"), "str?"),
     "tips": "strs?",
 }
@@ -555,7 +599,8 @@ def record_status(path: Path, config: TrialConfig, inputs: dict) -> tuple[str, o
     differences = record_differences(record, config, inputs)
     if not differences:
         return "reuse", TrialRecord.from_dict(record)
-    stale = all(key in RELEASE_FIELDS for key in differences)
+    release = RELEASE_FIELDS + (("inputs.learned_sha256",) if config.learned == SHIPPED else ())
+    stale = all(key in release for key in differences)
     return ("stale" if stale else "mismatch"), differences
 
 

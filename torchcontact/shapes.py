@@ -105,7 +105,7 @@ class ObjectMesh:
     @functools.cached_property
     def collision_parts(self) -> tuple[trimesh.Trimesh, ...]:
         """The convex meshes [m] MuJoCo collides: the hull of all parts, or the parts."""
-        return (_convex(self.vertices),) if self.collide_hull else self.parts
+        return (convex(self.vertices),) if self.collide_hull else self.parts
 
     @property
     def vertices(self) -> np.ndarray:
@@ -170,7 +170,7 @@ def make_object(
     listed = OBJECT_SIZES[name]
     target = _positive_vector("size", listed if size is None else size, 3)
     origin = OBJECT_ORIGIN_HEIGHTS.get(name, listed[2] / 2) * target[2] / listed[2]
-    obj = _assemble(
+    obj = assemble(
         name, _SHAPES[name](), target, _positive_scalar("mass", mass), origin_height=origin
     )
     hull = collision == "hull" or (collision == "auto" and name not in HOLLOW_OBJECTS)
@@ -178,42 +178,66 @@ def make_object(
     return dataclasses.replace(obj, collide_hull=True) if hull and len(obj.parts) > 1 else obj
 
 
+MAX_MESH_EXTENT = 1.0
+"""[m] A mesh file whose largest extent, after its size or scale, exceeds this is refused: it
+is most likely in millimetres."""
+
+
 def load_object(
     path: str | Path,
-    size: float | Sequence[float],
+    size: float | Sequence[float] | None = None,
     mass: float = DEFAULT_MASS,
     decomposition: str = "auto",
     name: str | None = None,
+    scale: float | None = None,
 ) -> ObjectMesh:
-    """An object from a mesh file (.stl, .obj, ...), scaled and split into convex parts.
+    """An object from a mesh file (.stl, .obj, ...), in metres, split into convex parts.
 
     Args:
-        path: mesh file readable by trimesh.
-        size: a number scales uniformly so the largest extent equals it [m]; a triple
-            ``(x, y, z)`` scales per axis to that bounding box [m].
+        path: mesh file readable by trimesh, its coordinates in metres.
+        size: None keeps the file's own size (times ``scale``); a number scales uniformly so
+            the largest extent equals it [m]; a triple ``(x, y, z)`` scales per axis to that
+            bounding box [m].
         mass: total mass [kg].
         decomposition: ``"coacd"`` splits the mesh into approximately convex parts with the
             optional ``coacd`` package (holes and cavities stay open); ``"hull"`` keeps its
             convex hull (what MuJoCo would collide anyway); ``"auto"`` uses coacd when it is
             installed, else the hull.
         name: asset name; default the file stem.
+        scale: factor on the file's coordinates (0.001 for a file in millimetres); not with
+            ``size``.
+
+    Raises ``ValueError`` naming the argument for a missing or empty file, a bad size, scale
+    or mass, and for an object larger than :data:`MAX_MESH_EXTENT` (most likely millimetres).
     """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"path must be an existing mesh file, got {str(path)!r}")
     if decomposition not in DECOMPOSITIONS:
         raise ValueError(f"decomposition must be one of {DECOMPOSITIONS}, got {decomposition!r}")
+    if size is not None and scale is not None:
+        raise ValueError("size and scale both set the object's size: give one of them")
     mesh = trimesh.load(path, force="mesh")
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"path must hold a triangle mesh, got nothing usable from {str(path)!r}")
-    if np.ndim(size) == 0:
-        scale = _positive_scalar("size", size) / float(mesh.extents.max())
-        target = mesh.extents * scale
+    if size is None:
+        factor = 1.0 if scale is None else _positive_scalar("scale", scale)
+        target = mesh.extents * factor
+    elif np.ndim(size) == 0:
+        target = mesh.extents * (_positive_scalar("size", size) / float(mesh.extents.max()))
     else:
         target = _positive_vector("size", size, 3)
+    if not np.all(target > 0):
+        raise ValueError(f"path must hold a solid mesh, but {str(path)!r} is flat")
+    if float(target.max()) > MAX_MESH_EXTENT:
+        raise ValueError(
+            f"{str(path)!r} is {float(target.max()):g} m across, more than {MAX_MESH_EXTENT:g} m: "
+            "it is most likely in millimetres. Give its size (size=, --object-size: largest "
+            "extent in m) or a scale (scale=, --object-scale: 0.001 for millimetres)"
+        )
     mass = _positive_scalar("mass", mass)
     try:
-        return _assemble(name or path.stem, _decompose(mesh, decomposition), target, mass)
+        return assemble(name or path.stem, _decompose(mesh, decomposition), target, mass)
     except QhullError:  # every point on a plane, a line or one point
         raise ValueError(
             f"path must hold a solid mesh, but the points of {str(path)!r} enclose no volume"
@@ -223,7 +247,7 @@ def load_object(
 # --- assembly ------------------------------------------------------------------------------
 
 
-def _assemble(
+def assemble(
     name: str,
     parts: Sequence[trimesh.Trimesh],
     size: np.ndarray,
@@ -237,7 +261,7 @@ def _assemble(
     scale = size / (high - low)
     lift = 0.0 if origin_height is None else size[2] / 2 - origin_height
     offset = np.array([0.0, 0.0, lift])
-    fitted = tuple(_convex((p.vertices - (low + high) / 2) * scale + offset) for p in parts)
+    fitted = tuple(convex((p.vertices - (low + high) / 2) * scale + offset) for p in parts)
     centre, inertia = _union_mass_properties(fitted, mass)
     return ObjectMesh(name=name, parts=fitted, mass=mass, inertia=inertia, centre_of_mass=centre)
 
@@ -293,7 +317,7 @@ def _decompose(mesh: trimesh.Trimesh, decomposition: str) -> list[trimesh.Trimes
     pieces = coacd.run_coacd(
         coacd.Mesh(mesh.vertices, mesh.faces), threshold=0.05, max_convex_hull=16, seed=0
     )
-    return [_convex(np.asarray(vertices)) for vertices, _ in pieces]
+    return [convex(np.asarray(vertices)) for vertices, _ in pieces]
 
 
 @functools.cache
@@ -356,14 +380,14 @@ def _rotation_matrix(quat: np.ndarray) -> np.ndarray:
 # --- convex primitives (in arbitrary units; objects are rescaled to their size) -------------
 
 
-def _convex(points: np.ndarray) -> trimesh.Trimesh:
+def convex(points: np.ndarray) -> trimesh.Trimesh:
     """The convex hull of ``points (n, 3)`` as a watertight mesh."""
     return trimesh.convex.convex_hull(np.asarray(points, dtype=float))
 
 
 def _placed(mesh: trimesh.Trimesh, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
     vertices = mesh.vertices if rotation is None else mesh.vertices @ rotation[:3, :3].T
-    return _convex(vertices + np.asarray(centre, dtype=float))
+    return convex(vertices + np.asarray(centre, dtype=float))
 
 
 def _box(extents, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
@@ -372,7 +396,7 @@ def _box(extents, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
 
 def _ellipsoid(radii, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
     sphere = trimesh.creation.icosphere(subdivisions=2)
-    return _placed(_convex(sphere.vertices * np.asarray(radii, dtype=float)), centre, rotation)
+    return _placed(convex(sphere.vertices * np.asarray(radii, dtype=float)), centre, rotation)
 
 
 def _flat_bottomed(mesh: trimesh.Trimesh, z: float = 0.0) -> trimesh.Trimesh:
@@ -380,7 +404,7 @@ def _flat_bottomed(mesh: trimesh.Trimesh, z: float = 0.0) -> trimesh.Trimesh:
     were scanned from have (a round bottom rolls away from its resting pose)."""
     vertices = mesh.vertices.copy()
     vertices[:, 2] = np.maximum(vertices[:, 2], z)
-    return _convex(vertices)
+    return convex(vertices)
 
 
 def _cylinder(radius, height, centre=(0, 0, 0), rotation=None) -> trimesh.Trimesh:
@@ -394,13 +418,13 @@ def _frustum(radius_bottom, radius_top, z_bottom, z_top) -> trimesh.Trimesh:
     ring = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], -1)
     bottom = ring * [radius_bottom, radius_bottom, 0] + [0, 0, z_bottom]
     top = ring * [radius_top, radius_top, 0] + [0, 0, z_top]
-    return _convex(np.concatenate([bottom, top]))
+    return convex(np.concatenate([bottom, top]))
 
 
 def _capsule(start, end, radius) -> trimesh.Trimesh:
     """Convex hull of two spheres: a rod with round ends from ``start`` to ``end``."""
     sphere = trimesh.creation.icosphere(subdivisions=1).vertices * radius
-    return _convex(np.concatenate([sphere + start, sphere + end]))
+    return convex(np.concatenate([sphere + start, sphere + end]))
 
 
 def _revolved(profile, sectors: int, start: float = 0.0, stop: float = 2 * np.pi, rotation=None):
@@ -418,7 +442,7 @@ def _revolved(profile, sectors: int, start: float = 0.0, stop: float = 2 * np.pi
             np.stack([profile[:, 0] * np.cos(a), profile[:, 0] * np.sin(a), profile[:, 1]], -1)
             for a in angles
         ]
-        parts.append(_placed(_convex(np.concatenate(points)), rotation=rotation))
+        parts.append(_placed(convex(np.concatenate(points)), rotation=rotation))
     return parts
 
 
@@ -471,7 +495,7 @@ def _stick():
         along = (abs(x) - (half - cap)) / cap  # 0 where the cap starts, 1 at the tip
         scale = max(np.sqrt(max(1.0 - along**2, 0.0)), 0.05)  # a small flat tip, not a point
         rings.append(np.concatenate([np.full((len(angles), 1), x), scale * section], -1))
-    return [_convex(np.concatenate(rings))]
+    return [convex(np.concatenate(rings))]
 
 
 def _bunny():
@@ -493,22 +517,22 @@ def _bunny():
 
 def _airplane():
     """Airliner along +y: fuselage, swept wings, tailplane and fin."""
-    wing = _convex(
+    wing = convex(
         [[0, 0.01, 0], [0, -0.015, 0], [0.05, -0.02, 0], [0.05, -0.027, 0], [0, 0.01, 0.004]]
         + [[0, -0.015, 0.004], [0.05, -0.02, 0.002], [0.05, -0.027, 0.002]]
     )
     mirror = np.diag([-1.0, 1, 1])
-    tailplane = _convex(
+    tailplane = convex(
         [[0, -0.05, 0.006], [0, -0.062, 0.006], [0.02, -0.064, 0.006], [0.02, -0.058, 0.006]]
         + [[0, -0.05, 0.009], [0, -0.062, 0.009], [0.02, -0.064, 0.009], [0.02, -0.058, 0.009]]
     )
     return [
         _capsule([0, -0.058, 0.008], [0, 0.058, 0.008], 0.008),  # fuselage
         wing,
-        _convex(wing.vertices @ mirror),
+        convex(wing.vertices @ mirror),
         tailplane,
-        _convex(tailplane.vertices @ mirror),
-        _convex(  # fin
+        convex(tailplane.vertices @ mirror),
+        convex(  # fin
             [[-0.0015, -0.048, 0.008], [0.0015, -0.048, 0.008], [-0.0015, -0.066, 0.008]]
             + [[0.0015, -0.066, 0.008], [-0.0015, -0.066, 0.036], [0.0015, -0.066, 0.036]]
             + [[-0.0015, -0.06, 0.036], [0.0015, -0.06, 0.036]]
@@ -588,7 +612,7 @@ def _mug():
 def _ear(side: float) -> trimesh.Trimesh:
     """A piggy's pointed ear: a tetrahedron on the top of the head, on the ``side`` of y."""
     base = [[0.02, 0.01, 0.06], [0.03, 0.014, 0.062], [0.022, 0.02, 0.062], [0.024, 0.016, 0.073]]
-    return _convex(np.asarray(base) * [1.0, side, 1.0])
+    return convex(np.asarray(base) * [1.0, side, 1.0])
 
 
 def _piggy_bank():
@@ -612,7 +636,7 @@ def _rubber_duck():
         _flat_bottomed(_ellipsoid([0.042, 0.032, 0.03], [0, 0, 0.022])),  # body on a flat base
         _ellipsoid([0.021, 0.02, 0.021], [0.018, 0, 0.064]),  # head
         _ellipsoid([0.012, 0.01, 0.004], [0.041, 0, 0.06]),  # beak
-        _convex([[-0.03, -0.01, 0.03], [-0.03, 0.01, 0.03], [-0.046, 0, 0.05], [-0.036, 0, 0.02]]),
+        convex([[-0.03, -0.01, 0.03], [-0.03, 0.01, 0.03], [-0.046, 0, 0.05], [-0.036, 0, 0.02]]),
         _ellipsoid([0.02, 0.004, 0.01], [-0.004, 0.03, 0.032]),  # wings
         _ellipsoid([0.02, 0.004, 0.01], [-0.004, -0.03, 0.032]),
     ]

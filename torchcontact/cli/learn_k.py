@@ -17,9 +17,13 @@ test windows; the combined error is the MPC's ``w_p‖p − p*‖² + w_q(1 − 
 from __future__ import annotations
 
 import argparse
+import datetime
 import functools
 import math
 import os
+import shlex
+import subprocess
+import sys
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -48,9 +52,12 @@ from torchcontact.learn.fit import StepData, fit
 from torchcontact.learn.policies import ACTIONS
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
+from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.trials import file_sha256, library_versions
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
-from torchcontact.results import write_csv, write_json
+from torchcontact.results import atomic_write, write_csv, write_json
+from torchcontact.shipped import models_dir
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
 """Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
@@ -103,6 +110,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--seed", type=int, default=0, help="data, split and fit seed")
     add("--out", type=Path, default=Path("results/learn"))
     add("--json", type=Path, default=None, help="write the headline figures here")
+    add(
+        "--ship",
+        action="store_true",
+        help="also install the learned model as the scene's shipped default, with its manifest "
+        "(torchcontact/assets/models/SCENE.pt and .json)",
+    )
     add("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride", "workers")
@@ -187,6 +200,8 @@ def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
     and the paper's solver settings."""
     env = scene.environment
     settings = MPCSettings(compile=compile)
+    if compile:
+        quiet_known_inductor_warnings()
     return ContactImplicitMPC.from_env(
         env, scene.plant, paper_model(env.stiffness), settings=settings
     )
@@ -350,4 +365,49 @@ def main(argv: list[str] | None = None) -> int:
         write_json(args.json, {key: record[key] for key in HEADLINE})
     print_table(record, args.stiffness)
     print(f"wrote {args.results}/results.json, model.pt, history.csv")
+    if args.ship:
+        command = ["torchcontact", "learn-k", *(sys.argv[1:] if argv is None else argv)]
+        path = ship_model(args.results / "model.pt", args.scene, record, command)
+        print(f"shipped {path} and its manifest {path.with_suffix('.json').name}")
     return 0
+
+
+def ship_model(checkpoint: Path, scene: str, record: dict, command: list[str]) -> Path:
+    """Install ``checkpoint`` as ``scene``'s shipped model (:mod:`torchcontact.shipped`), with
+    a manifest: the command, the dataset, the library versions, the file's SHA-256, the date,
+    the commit and the validation figures of ``record``. Returns the model's path."""
+    target = models_dir() / f"{scene}.pt"
+    data = checkpoint.read_bytes()
+    atomic_write(target, lambda f: f.write(data), binary=True)
+    manifest = {
+        "environment": scene,
+        "command": shlex.join(command),
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "commit": _commit(),
+        "sha256": file_sha256(target),
+        "dataset": {
+            "object": record["object"],
+            "transitions": record["transitions"],
+            "splits": record["splits"],
+        },
+        "fit": record["fit"],
+        "versions": library_versions(),
+        "validation": {key: record[key] for key in HEADLINE},
+    }
+    write_json(target.with_suffix(".json"), manifest)
+    return target
+
+
+def _commit() -> str | None:
+    """The source checkout's commit, None outside a git checkout."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=Path(__file__).parent,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return out.stdout.strip()

@@ -17,10 +17,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torchcontact import generated
 from torchcontact.environments import tasks
 from torchcontact.environments.costs import Cost
 from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
 from torchcontact.integrate import JointLayout
+from torchcontact.objects import ObjectOptions, is_mesh_file
+from torchcontact.shipped import shipped_environments
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import GRAVITY, QuasiDynamic
 
@@ -85,7 +88,7 @@ class Environment:
         stiffness: the paper's K (``learn-k`` collects its data with it).
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
-        user_meshes: whether an object may be a mesh file.
+        user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
             robot's (block ``robot``).
     """
@@ -101,9 +104,12 @@ class Environment:
 
     # --- what subclasses define ----------------------------------------------------------
 
-    def make_plant(self, obj, collision: str = BENCHMARK_COLLISION) -> Plant:
-        """The MuJoCo plant of object ``obj`` (a name, or a mesh path where
-        :attr:`user_meshes`), colliding as ``collision``."""
+    def make_plant(
+        self, obj, collision: str = BENCHMARK_COLLISION, options: ObjectOptions | None = None
+    ) -> Plant:
+        """The MuJoCo plant of object ``obj`` (a built-in name, or where :attr:`user_meshes` a
+        generated object ``"random-SEED"`` or a mesh file), colliding as ``collision``, with
+        the size, mass and friction ``options`` set (None: the scene's)."""
         raise NotImplementedError
 
     def robot(self, dtype: torch.dtype = torch.float64) -> torch.nn.Module:
@@ -156,6 +162,12 @@ class Environment:
         return tasks.aim_pose(target, resting, self.criterion.position_tolerance)
 
     @property
+    def ships_model(self) -> bool:
+        """Whether the package ships a learned model of this environment, the MPC's default
+        (:mod:`torchcontact.shipped`)."""
+        return self.name in shipped_environments()
+
+    @property
     def tasks(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys(task for task, _ in self.pairs))
 
@@ -170,20 +182,40 @@ class Environment:
         return self.presets[name]
 
     def select(self, task: str, obj: str) -> list[tuple[str, str]]:
-        """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; ``obj`` may be a
-        mesh path where :attr:`user_meshes`). Raises ``ValueError`` naming the bad option."""
+        """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; where
+        :attr:`user_meshes`, ``obj`` may also be a mesh path, a generated object
+        ``"random-SEED"`` or a set of them, ``"random:N"`` or ``"random:A-B"``, see
+        :func:`torchcontact.generated.expand`). Raises ``ValueError`` naming the bad option."""
         if task not in ("all", *self.tasks):
             raise ValueError(f"--task must be one of {self.tasks} or 'all', got {task!r}")
-        if self.user_meshes and obj not in self.objects and Path(obj).suffix:
-            if not Path(obj).is_file():
-                raise ValueError(f"--object must be an existing mesh file, got {obj!r}")
-            return [(t, obj) for t in self.tasks if task in ("all", t)]
+        if self.user_meshes and obj not in self.objects:
+            objects = self._user_objects(obj)
+            if objects:
+                return [(t, o) for o in objects for t in self.tasks if task in ("all", t)]
         if obj not in ("all", *self.objects):
-            raise ValueError(f"--object must be one of {self.objects} or 'all', got {obj!r}")
+            also = ", a mesh file or random:N" if self.user_meshes else ""
+            raise ValueError(f"--object must be one of {self.objects}, 'all'{also}, got {obj!r}")
         pairs = [(t, o) for t, o in self.pairs if task in ("all", t) and obj in ("all", o)]
         if not pairs:
             raise ValueError(f"{self.name} has no task {task!r} with object {obj!r}")
         return pairs
+
+    @staticmethod
+    def _user_objects(obj: str) -> list[str]:
+        """The objects ``obj`` names beyond the built-in ones: a mesh file, a generated object
+        or a set of them; none where it names none of these."""
+        if generated.is_set(obj):
+            try:
+                return generated.expand(obj)
+            except ValueError as error:
+                raise ValueError(f"--object: {error}") from None
+        if generated.is_generated(obj):
+            return [obj]
+        if is_mesh_file(obj):
+            if not Path(obj).is_file():
+                raise ValueError(f"--object must be an existing mesh file, got {obj!r}")
+            return [obj]
+        return []
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"

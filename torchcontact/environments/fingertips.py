@@ -10,6 +10,7 @@ from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, Obj
 from torchcontact.environments.costs import ManipulationCost
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
+from torchcontact.objects import ObjectOptions
 from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.robot import Robot
 
@@ -50,7 +51,14 @@ class FingertipsEnvironment(Environment):
     user_meshes = False
     layout = JointLayout.manipulation(["slide"] * 9)
 
-    def make_plant(self, obj, collision: str = BENCHMARK_COLLISION) -> FingertipsEnv:
+    def make_plant(
+        self, obj, collision: str = BENCHMARK_COLLISION, options: ObjectOptions | None = None
+    ) -> FingertipsEnv:
+        if options is not None and not options.is_default:
+            raise ValueError(
+                "options must be empty for fingertips: its objects are the paper's three "
+                "scenes, each with its own per-object model settings"
+            )
         settings = tasks.OBJECT_SETTINGS[obj]
         return FingertipsEnv(
             obj,

@@ -16,6 +16,7 @@ from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, Obj
 from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
+from torchcontact.objects import ObjectOptions
 from torchcontact.shapes import ObjectMesh, object_names
 from torchcontact.sim.hands import ALLEGRO, MODEL_FRICTION, TRIFINGER, Hand, HandEnv
 
@@ -47,7 +48,9 @@ class HandModel:
         h: the model's time step [s].
         tilt: weight of the cost's tilt term for objects that tip before they slide
             (:func:`tips_before_sliding`); 0 leaves every object without.
-        object_mass: the mass [kg] the model gives every object; None: the plant's.
+        object_mass: the mass [kg] the model gives an object whose mass the user did not set
+            (the paper's hand models plan every object at 10 g, its 100 g cube and stick
+            included); None: the plant's.
     """
 
     robot_stiffness: float
@@ -96,14 +99,18 @@ class HandEnvironment(Environment):
     def layout(self) -> JointLayout:
         return JointLayout.manipulation(self.hand.robot().joint_types)
 
-    def make_plant(self, obj, collision: str = BENCHMARK_COLLISION) -> HandEnv:
-        return HandEnv(self.hand, obj, overflow="deepest", collision=collision)
+    def make_plant(
+        self, obj, collision: str = BENCHMARK_COLLISION, options: ObjectOptions | None = None
+    ) -> HandEnv:
+        return HandEnv(self.hand, obj, options=options, overflow="deepest", collision=collision)
 
     def robot(self, dtype: torch.dtype = torch.float64) -> torch.nn.Module:
         return self.hand.robot(dtype)
 
     def object_model(self, plant: HandEnv) -> ObjectModel:
-        return ObjectModel(self.model.metric, self.model.robot_stiffness, self.model.object_mass)
+        # a mass the user gives is the model's; else the scene's modelled mass, if it has one
+        mass = None if plant.options.mass is not None else self.model.object_mass
+        return ObjectModel(self.model.metric, self.model.robot_stiffness, mass)
 
     def h(self, plant: HandEnv) -> float:
         return self.model.h

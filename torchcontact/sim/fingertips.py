@@ -18,9 +18,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from torchcontact.objects import ObjectOptions, resolve
 from torchcontact.shapes import ObjectMesh
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
+from torchcontact.sim.plant import Plant, as_pose, as_vector
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
 TIP_RADIUS = 0.01
@@ -40,11 +41,11 @@ class FingertipsEnv(Plant):
     Args:
         obj: a built-in object name (see :func:`~torchcontact.shapes.object_names`), a
             mesh file path, or an :class:`~torchcontact.sim.objects.ObjectMesh`.
-        object_size: for a mesh path, the largest extent [m] it is scaled to, or its
-            bounding box (x, y, z) [m].
-        mass: object mass [kg] (names and paths only).
-        object_friction, tip_friction, ground_friction: sliding friction coefficients; MuJoCo
-            combines a pair by the maximum.
+        options: the object's size, scale, mass (default 10 g) and friction
+            (:class:`~torchcontact.objects.ObjectOptions`; a mesh file keeps its own size in
+            metres unless they set it); names and paths only.
+        object_friction, tip_friction, ground_friction: sliding friction coefficients (the
+            object's unless ``options`` sets it); MuJoCo combines a pair by the maximum.
         condim: contact dimensionality of every geom (6: sliding, torsional and rolling).
         contact_slots: slots nc of :meth:`contacts` (the paper: 8 for cube and stick, 10 for
             foam brick and bunny; 12 for our multi-part bunny; see
@@ -64,8 +65,7 @@ class FingertipsEnv(Plant):
         self,
         obj: str | Path | ObjectMesh = "cube",
         *,
-        object_size: float | tuple[float, float, float] = 0.1,
-        mass: float = 0.01,
+        options: ObjectOptions | None = None,
         object_friction: float = 0.9,
         tip_friction: float = 0.5,
         ground_friction: float = 0.5,
@@ -90,7 +90,10 @@ class FingertipsEnv(Plant):
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
         super().__init__()
-        self.object = resolve_object(obj, object_size, mass, collision=collision)
+        self.object = resolve(obj, options, collision=collision)
+        if options is not None and options.friction is not None:
+            object_friction = options.friction
+        self.object_friction = float(object_friction)
         self.frame_skip, self.kp, self.kd = frame_skip, float(kp), float(kd)
         spec = _scene_spec(self.object, object_friction, tip_friction, ground_friction, condim)
         spec.option.timestep = timestep

@@ -20,9 +20,10 @@ import numpy as np
 import torch
 
 from torchcontact.assets import asset_path
+from torchcontact.objects import ObjectOptions, resolve
 from torchcontact.shapes import OBJECT_SIZES, ObjectMesh
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
-from torchcontact.sim.plant import Plant, as_pose, as_vector, resolve_object
+from torchcontact.sim.plant import Plant, as_pose, as_vector
 from torchcontact.sim.robot import Robot
 from torchcontact.sim.scene import OBJECT_BODY, scene_spec
 
@@ -106,19 +107,15 @@ class Hand:
         return overrides or ObjectOverride()
 
     def object_mesh(
-        self,
-        obj,
-        object_size: float | tuple[float, float, float] = 0.1,
-        mass: float | None = None,
-        collision: str = "auto",
+        self, obj, options: ObjectOptions | None = None, collision: str = "auto"
     ) -> ObjectMesh:
-        """``obj`` (a built-in name, a mesh path or an :class:`ObjectMesh`) as this hand's scene
-        has it: its size override, and ``mass`` or else the override's or the hand's default;
-        ``collision`` as :func:`~torchcontact.sim.plant.resolve_object`."""
+        """``obj`` (a built-in, generated or mesh-file object, or an :class:`ObjectMesh`) as
+        this hand's scene has it: its size override and mass (the override's or the hand's
+        default) unless ``options`` set them; ``collision`` as
+        :func:`~torchcontact.objects.resolve`."""
         override = self.override(obj)
-        if mass is None:
-            mass = _chosen(override.mass, self.object_mass)
-        return resolve_object(obj, object_size, mass, override.size, collision)
+        mass = _chosen(override.mass, self.object_mass)
+        return resolve(obj, options, mass, override.size, collision)
 
     def robot(
         self, dtype: torch.dtype = torch.float64, device: torch.device | str | None = None
@@ -257,8 +254,9 @@ class HandEnv(Plant):
     Args:
         hand: a :class:`Hand` or its name (``"trifinger"``, ``"allegro"``).
         obj: a built-in object name, a mesh path, or an :class:`ObjectMesh`.
-        object_size: for a mesh path, its largest extent [m] or bounding box (x, y, z) [m].
-        mass: object mass [kg]; None takes the hand's default (and its per-object overrides).
+        options: the object's size, scale, mass and friction
+            (:class:`~torchcontact.objects.ObjectOptions`); what it leaves None is the hand's
+            default and per-object override (a mesh file keeps its own size in metres).
         condim: contact dimensionality of the scene's own geoms (ground, object).
         contact_slots: slots nc of :meth:`contacts`; None sizes them from the scene
             (:func:`scene_contact_slots`).
@@ -269,7 +267,7 @@ class HandEnv(Plant):
         timestep: MuJoCo substep [s].
         collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
             :func:`~torchcontact.shapes.make_object` and
-            :func:`~torchcontact.sim.plant.resolve_object`.
+            :func:`~torchcontact.objects.resolve`.
     """
 
     def __init__(
@@ -277,8 +275,7 @@ class HandEnv(Plant):
         hand: Hand | str,
         obj: str | Path | ObjectMesh = "cube",
         *,
-        object_size: float | tuple[float, float, float] = 0.1,
-        mass: float | None = None,
+        options: ObjectOptions | None = None,
         collision: str = "auto",
         condim: int = 6,
         contact_slots: int | None = None,
@@ -308,8 +305,12 @@ class HandEnv(Plant):
             raise ValueError(f"contact_margin must be a non-negative finite number, got {margin!r}")
         self.hand = hand
         override = hand.override(obj)
-        self.object = hand.object_mesh(obj, object_size, mass, collision)
-        self.object_friction = _chosen(override.object_friction, hand.object_friction)
+        self.options = ObjectOptions() if options is None else options
+        self.object = hand.object_mesh(obj, options, collision)
+        friction = self.options.friction
+        self.object_friction = _chosen(
+            friction, _chosen(override.object_friction, hand.object_friction)
+        )
         self.ground_friction = _chosen(override.ground_friction, hand.ground_friction)
         spec = self._scene_spec(condim)
         spec.option.timestep = timestep

@@ -13,13 +13,6 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import Contacts
-from torchcontact.shapes import (
-    COLLISIONS,
-    OBJECT_SIZES,
-    ObjectMesh,
-    load_object,
-    make_object,
-)
 from torchcontact.sim.detect import ContactDetector
 
 
@@ -116,37 +109,6 @@ class Plant:
         for renderer in self._renderers.values():
             renderer.close()
         self._renderers.clear()
-
-
-def resolve_object(
-    obj,
-    object_size,
-    mass: float,
-    size: tuple[float, float, float] | None = None,
-    collision: str = "auto",
-) -> ObjectMesh:
-    """An :class:`ObjectMesh` from a built-in name (at ``size``, default its listed size), a
-    mesh path (scaled to ``object_size``) or an :class:`ObjectMesh` (as is).
-
-    ``collision`` (one of :data:`~torchcontact.sim.objects.COLLISIONS`): how a built-in
-    object collides, see :func:`~torchcontact.shapes.make_object`; for a mesh path
-    ``"hull"`` keeps its convex hull and the others its default decomposition.
-    """
-    if collision not in COLLISIONS:
-        raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
-    if isinstance(obj, ObjectMesh):
-        return obj
-    if isinstance(obj, str) and obj in OBJECT_SIZES:
-        return make_object(obj, mass=mass, size=size, collision=collision)
-    if isinstance(obj, (str, Path)) and Path(obj).suffix:
-        decomposition = "hull" if collision == "hull" else "auto"
-        # named apart from the built-in objects, whose names key the paper's per-object settings
-        name = f"mesh_{Path(obj).stem}"
-        return load_object(obj, object_size, mass=mass, decomposition=decomposition, name=name)
-    raise ValueError(
-        f"obj must be an object name among {tuple(OBJECT_SIZES)}, a mesh path or an "
-        f"ObjectMesh, got {obj!r}"
-    )
 
 
 def as_vector(name: str, value, size: int) -> np.ndarray:

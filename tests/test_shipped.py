@@ -1,0 +1,66 @@
+"""The learned models that ship with the package: they load, match their manifests, and are
+what ``torchcontact run ENV`` plans with when no flag says otherwise."""
+
+import pytest
+import torch
+
+from torchcontact.checkpoint import load_checkpoint
+from torchcontact.environments import environment
+from torchcontact.mpc.evaluate import parse_args
+from torchcontact.mpc.trials import file_sha256, trial_configs, trial_inputs, trial_model
+from torchcontact.shipped import SHIPPED, shipped_environments, shipped_manifest, shipped_path
+from torchcontact.stiffness import Constant
+
+SHIPPED_ENVS = shipped_environments()
+
+
+def test_trifinger_ships_a_model():
+    assert "trifinger" in SHIPPED_ENVS
+
+
+@pytest.mark.parametrize("env", SHIPPED_ENVS)
+def test_shipped_model_loads_and_matches_its_manifest(env):
+    path = shipped_path(env)
+    model, config, meta = load_checkpoint(path)
+    manifest = shipped_manifest(env)
+    assert manifest["sha256"] == file_sha256(path)
+    assert manifest["environment"] == env
+    assert manifest["command"].startswith(f"torchcontact learn-k --scene {env}")
+    assert manifest["fit"]["stiffness"] == config.stiffness
+    assert manifest["dataset"]["transitions"] > 0
+    assert set(manifest["versions"]) >= {"torch", "mujoco", "torchcontact"}
+    assert "improvement_vs_best_constant" in manifest["validation"]
+    assert path.stat().st_size < 1_000_000  # small enough to ship
+
+
+@pytest.mark.parametrize("env", SHIPPED_ENVS)
+def test_default_mpc_plans_with_the_shipped_model(env):
+    """Fails if the defaults fall back to a constant K (the paper's or any other)."""
+    args = parse_args([env])
+    assert args.learned == SHIPPED and args.stiffness is None
+    task, obj = environment(env).pairs[0]
+    (config,) = trial_configs(env, [(task, obj)], [0])
+    assert config.learned == SHIPPED and config.stiffness is None
+    model = trial_model(config, h=0.1)
+    shipped = load_checkpoint(shipped_path(env))[0]
+    assert not isinstance(model.stiffness, Constant) or shipped.stiffness.__class__ is Constant
+    for (name, value), expected in zip(
+        model.state_dict().items(), shipped.state_dict().values(), strict=True
+    ):
+        assert torch.equal(value, expected), name
+    assert trial_inputs(config)["learned_sha256"] == file_sha256(shipped_path(env))
+
+
+@pytest.mark.parametrize("env", SHIPPED_ENVS)
+def test_paper_stiffness_flag_takes_the_papers_constant(env):
+    args = parse_args([env, "--stiffness", "paper"])
+    assert args.learned is None and args.stiffness == environment(env).stiffness
+
+
+def test_an_env_without_a_shipped_model_refuses_the_flag(capsys):
+    unshipped = [name for name in ("fingertips", "allegro") if name not in SHIPPED_ENVS]
+    if not unshipped:
+        pytest.skip("every built-in environment ships a model")
+    with pytest.raises(SystemExit):
+        parse_args([unshipped[0], "--stiffness", "shipped"])
+    assert "ships no model" in capsys.readouterr().err

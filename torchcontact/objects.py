@@ -1,0 +1,127 @@
+"""Which object a scene holds: a built-in name, a generated name or a mesh file, and the
+user's choice of its size, mass and friction.
+
+No MuJoCo here: :func:`resolve` returns the :class:`~torchcontact.shapes.ObjectMesh` a plant
+turns into a body. The same options reach it from the CLI (``--object-size``,
+``--object-scale``, ``--object-mass``, ``--object-friction``) and from Python::
+
+    plant = env.make_plant("scan.stl", options=ObjectOptions(mass=0.05))
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from torchcontact import generated
+from torchcontact.shapes import (
+    COLLISIONS,
+    OBJECT_SIZES,
+    ObjectMesh,
+    load_object,
+    make_object,
+)
+
+
+@dataclass(frozen=True)
+class ObjectOptions:
+    """A user's settings of the object; None keeps the scene's own.
+
+    Attributes:
+        size: largest extent [m] the object is scaled to, uniformly (a mesh file is used at
+            its own size in metres otherwise; a built-in or generated object at its listed or
+            drawn size).
+        scale: factor on that own size (0.001 for a mesh file in millimetres); not with
+            ``size``.
+        mass: total mass [kg] (the scene's default otherwise: the paper's).
+        friction: the object's sliding friction coefficient.
+    """
+
+    size: float | None = None
+    scale: float | None = None
+    mass: float | None = None
+    friction: float | None = None
+
+    def __post_init__(self):
+        for name in ("size", "scale", "mass"):
+            value = getattr(self, name)
+            if value is not None and not _positive(value):
+                raise ValueError(f"object {name} must be a positive finite number, got {value!r}")
+        if self.friction is not None and not (_number(self.friction) and self.friction >= 0):
+            raise ValueError(
+                f"object friction must be a non-negative finite number, got {self.friction!r}"
+            )
+        if self.size is not None and self.scale is not None:
+            raise ValueError("object size and scale both set its size: give one of them")
+
+    @property
+    def is_default(self) -> bool:
+        """Whether nothing is set."""
+        return self == ObjectOptions()
+
+
+def is_mesh_file(obj: object) -> bool:
+    """Whether ``obj`` names a mesh file (a path with a suffix; object names have none)."""
+    return isinstance(obj, (str, Path)) and bool(Path(obj).suffix)
+
+
+def resolve(
+    obj,
+    options: ObjectOptions | None = None,
+    mass: float = 0.01,
+    listed_size: tuple[float, float, float] | None = None,
+    collision: str = "auto",
+) -> ObjectMesh:
+    """The :class:`ObjectMesh` of ``obj`` under ``options``.
+
+    Args:
+        obj: a built-in name (:data:`~torchcontact.shapes.OBJECT_SIZES`), a generated name
+            (``"random-SEED"``, :mod:`torchcontact.generated`), a mesh file or an
+            :class:`ObjectMesh` (used as it is; ``options`` must then be empty).
+        options: the user's size, scale and mass (friction is the plant's to apply).
+        mass: the scene's mass [kg] where ``options.mass`` is None.
+        listed_size: a built-in object's box (x, y, z) [m] in this scene (default its listed).
+        collision: how it collides, see :func:`~torchcontact.shapes.make_object`; for a mesh
+            file ``"hull"`` keeps its convex hull and the others its default decomposition.
+    """
+    if collision not in COLLISIONS:
+        raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
+    options = ObjectOptions() if options is None else options
+    mass = mass if options.mass is None else options.mass
+    if isinstance(obj, ObjectMesh):
+        if not options.is_default:
+            raise ValueError("options must be empty for an ObjectMesh, which is used as it is")
+        return obj
+    if isinstance(obj, str) and obj in OBJECT_SIZES:
+        box = OBJECT_SIZES[obj] if listed_size is None else listed_size
+        factor = _factor(options, max(box))
+        size = None if factor is None else tuple(side * factor for side in box)
+        return make_object(obj, mass=mass, size=size, collision=collision)
+    if generated.is_generated(obj):
+        seed = generated.seed_of(obj)
+        return generated.generate(seed, mass, options.size, options.scale, collision)
+    if is_mesh_file(obj):
+        decomposition = "hull" if collision == "hull" else "auto"
+        # named apart from the built-in objects, whose names key the paper's scene facts
+        name = f"mesh_{Path(obj).stem}"
+        return load_object(obj, options.size, mass, decomposition, name, options.scale)
+    raise ValueError(
+        f"obj must be a built-in object among {tuple(OBJECT_SIZES)}, a generated object "
+        f"('random-SEED'), a mesh file or an ObjectMesh, got {obj!r}"
+    )
+
+
+def _factor(options: ObjectOptions, extent: float) -> float | None:
+    """The uniform scale ``options`` asks of an object of largest extent ``extent``."""
+    if options.size is not None:
+        return options.size / extent
+    return options.scale
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _positive(value) -> bool:
+    return _number(value) and value > 0
