@@ -25,6 +25,7 @@ from torchcontact.model import MODELS, ContactModel, contact_model, register_mod
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.planners import PLANNERS, PlannerResult, register_planner
 from torchcontact.mpc.trials import run_trial
+from torchcontact.objects import ObjectOptions
 from torchcontact.sim.hands import HandEnv
 
 GRIPPER = Path(__file__).resolve().parents[1] / "examples" / "two_finger_gripper.xml"
@@ -60,7 +61,8 @@ def test_an_environments_mpc_plans_within_its_box(name):
 
 def test_a_user_robots_model_takes_the_object_mass_from_the_plant():
     env = _gripper()
-    light, heavy = env.make_plant("cube"), HandEnv(env.hand, "cube", mass=0.05)
+    light = env.make_plant("cube")
+    heavy = HandEnv(env.hand, "cube", options=ObjectOptions(mass=0.05))
     Q_light, b_light = env.system(light)(torch.zeros(4, dtype=torch.float64))
     Q_heavy, b_heavy = env.system(heavy)(torch.zeros(4, dtype=torch.float64))
     torch.testing.assert_close(Q_heavy[:6], 5 * Q_light[:6])

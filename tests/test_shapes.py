@@ -133,5 +133,7 @@ def test_a_flat_mesh_is_refused_by_name_not_by_qhull(tmp_path):
     path = tmp_path / "flat.stl"
     trimesh.Trimesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]).export(path)
     for decomposition in ("hull", "auto"):
-        with pytest.raises(ValueError, match=r"flat\.stl' enclose no volume"):
-            load_object(path, 0.1, decomposition=decomposition)
+        # at its own size, as scaled to a size: either way refused as flat, by name
+        for size in (None, 0.1):
+            with pytest.raises(ValueError, match=r"solid mesh, but .*flat\.stl' is flat"):
+                load_object(path, size, decomposition=decomposition)

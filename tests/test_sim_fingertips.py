@@ -7,6 +7,7 @@ import pytest
 import torch
 import trimesh
 
+from torchcontact.objects import ObjectOptions
 from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
 
 CUBE_REST = np.array([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0])
@@ -111,7 +112,7 @@ def test_overflow_raises_unless_deepest_is_chosen():
 def test_user_mesh_object(tmp_path):
     path = tmp_path / "puck.stl"
     trimesh.creation.cylinder(radius=1.0, height=0.5).export(path)
-    env = FingertipsEnv(path, object_size=0.06)
+    env = FingertipsEnv(path, options=ObjectOptions(size=0.06))
     np.testing.assert_allclose(env.object.size, [0.06, 0.06, 0.015], atol=1e-3)
     start = env.reset([0, 0, env.object.resting_height(), 1, 0, 0, 0])
     for _ in range(10):

@@ -10,6 +10,7 @@ import pytest
 import torch
 import trimesh
 
+from torchcontact.objects import ObjectOptions
 from torchcontact.shapes import object_names
 from torchcontact.sim.hands import (
     ALLEGRO,
@@ -166,7 +167,7 @@ def test_contacts_keep_only_the_object_pairs(cube_env):
 def test_a_user_mesh_is_scaled_and_placed(tmp_path):
     path = tmp_path / "box.stl"
     trimesh.creation.box([2.0, 1.0, 0.5]).export(path)
-    env = HandEnv("trifinger", path, object_size=0.08)
+    env = HandEnv("trifinger", path, options=ObjectOptions(size=0.08))
     np.testing.assert_allclose(env.object.size, [0.08, 0.04, 0.02], rtol=1e-6)
     assert env.object.name == "mesh_box"  # apart from the built-in names
 

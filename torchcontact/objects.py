@@ -96,7 +96,7 @@ def resolve(
     if isinstance(obj, str) and obj in OBJECT_SIZES:
         box = OBJECT_SIZES[obj] if listed_size is None else listed_size
         factor = _factor(options, max(box))
-        size = None if factor is None else tuple(side * factor for side in box)
+        size = box if factor is None else tuple(side * factor for side in box)
         return make_object(obj, mass=mass, size=size, collision=collision)
     if generated.is_generated(obj):
         seed = generated.seed_of(obj)
