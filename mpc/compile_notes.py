@@ -31,10 +31,10 @@ def quiet_known_inductor_warnings() -> None:
 
 
 def compile_notice(scene: str) -> str:
-    """The line printed before a scene's first compiled step."""
+    """The line printed once before a sweep of compiled trials."""
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
     return (
-        f"compiling the MPC for {scene}: on this machine's first run (a minute or two), "
-        f"then loaded from the cache in {cache_dir()}"
+        f"compiling the MPC for {scene}: a minute or two per graph on this machine's first "
+        f"run, then loaded from the cache in {cache_dir()}"
     )

@@ -113,7 +113,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--stiffness",
-        type=_stiffness,
         default=None,
         help="the paper model's K: 'shipped' (the environment's learned K(q), D(q) shipped "
         "with the package, the default where it has one), 'paper' (the paper's constant K) "
@@ -155,29 +154,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--out", type=Path, default=None, help="default results/VARIANT")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here too")
+    parser.add_argument(
+        "--figure", type=Path, default=None, help="write the results figure here too (.png)"
+    )
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
     return parser
 
 
-def _stiffness(text: str) -> float | str:
-    """``--stiffness``: ``"shipped"``, ``"paper"`` or a positive number."""
-    if text in (SHIPPED, "paper"):
+def _stiffness(text: str | None) -> float | str | None:
+    """``--stiffness``: ``"shipped"``, ``"paper"`` or a positive number (``ValueError``
+    otherwise)."""
+    if text is None or text in (SHIPPED, "paper"):
         return text
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"must be 'shipped', 'paper' or a number, got {text!r}"
-        ) from None
+        value = math.nan
     if not 0 < value < math.inf:
-        raise argparse.ArgumentTypeError(f"must be positive and finite, got {text!r}")
+        raise ValueError(f"--stiffness must be 'shipped', 'paper' or a positive number, got {text}")
     return value
 
 
 def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Reject option combinations that mean nothing, naming the option."""
     qp = args.model == "relaxed_qp"
+    try:
+        args.stiffness = _stiffness(args.stiffness)
+    except ValueError as error:
+        parser.error(str(error))
     if args.stiffness is not None and qp:
         parser.error(f"--stiffness is for the paper model, got {args.stiffness}")
     if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
@@ -326,6 +331,8 @@ def write_summary(args: argparse.Namespace, records: list[dict], out: Path) -> d
     write_json(out / "summary.json", summary)
     write_csv(out / "trials.csv", [report.csv_row(r) for r in records])
     report.plot_results(records, out / "results.png")
+    if args.figure is not None:
+        report.plot_results(records, args.figure)
     if args.json is not None:
         write_json(args.json, summary)
     return summary
@@ -362,8 +369,9 @@ def main(argv: list[str] | None = None) -> int:
     out = Path("results") / configs[0].variant if args.out is None else args.out
     videos = [c for c in configs if c.seed == 0] if args.video else []
     writable_directory("--out", out)
-    if args.json is not None:
-        writable_file("--json", args.json)
+    for option, path in (("--json", args.json), ("--figure", args.figure)):
+        if path is not None:
+            writable_file(option, path)
     print(f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}")
     for line in describe_objects(args):
         print(line)

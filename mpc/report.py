@@ -62,22 +62,43 @@ def fell(record: dict) -> bool | None:
     return None
 
 
+MAX_LABELLED_GROUPS = 24
+"""Above this many (task, object) pairs a sweep is drawn as a population (against the objects'
+size and aspect ratio) rather than one bar per pair."""
+
+
 def plot_results(records: list[dict], path: Path) -> Path:
-    """The paper's figure: success per (task, object) and final errors, failures in grey."""
+    """The sweep's figure, a grid readable at page width: success and final errors per (task,
+    object) pair with failures in grey; above :data:`MAX_LABELLED_GROUPS` pairs, success
+    against each object's size and aspect ratio and the distributions of the final errors."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     groups = sorted({(r["task"], r["object"]) for r in records})
-    labels = [f"{task}\n{Path(obj).stem}" for task, obj in groups]
-    figure, axes = plt.subplots(1, 3, figsize=(4 + 1.6 * len(groups), 3.6))
+    if len(groups) > MAX_LABELLED_GROUPS:
+        figure = _plot_population(plt, records)
+    else:
+        figure = _plot_pairs(plt, records, groups)
+    figure.tight_layout()
+    path = save_figure(figure, path)
+    plt.close(figure)
+    return path
+
+
+def _plot_pairs(plt, records: list[dict], groups: list[tuple[str, str]]):
+    """Three stacked panels sharing the pairs' axis: success, final position, final angle."""
+    labels = [f"{task} {Path(obj).stem}" for task, obj in groups]
+    figure, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     rows = [[r for r in records if (r["task"], r["object"]) == g] for g in groups]
     rates = [100 * np.mean([r["success"] for r in rs]) for rs in rows]
     axes[0].bar(range(len(groups)), rates, color="tab:blue")
+    for i, rate in enumerate(rates):
+        axes[0].text(i, rate + 1, f"{rate:.0f}", ha="center", fontsize=8)
     axes[0].set_ylabel("success [%]")
-    axes[0].set_ylim(0, 105)
-    for axis, key, unit in ((axes[1], "pos_err_mm", "mm"), (axes[2], "angle_err_deg", "deg")):
+    axes[0].set_ylim(0, 112)
+    for axis, key, unit in ((axes[1], "pos_err_mm", "mm"), (axes[2], "angle_err_deg", "°")):
         ok = [[r[key] for r in rs if r["success"]] for rs in rows]
         if any(ok):
             positions = [i for i, values in enumerate(ok) if values]
@@ -86,12 +107,41 @@ def plot_results(records: list[dict], path: Path) -> Path:
             failed = [r[key] for r in rs if not r["success"]]
             axis.scatter([i] * len(failed), failed, color="grey", s=12, zorder=3)
         axis.set_ylabel(f"final {key.split('_err')[0]} error [{unit}]")
-    for axis in axes:
-        axis.set_xticks(range(len(groups)), labels, fontsize=8)
-    figure.tight_layout()
-    path = save_figure(figure, path)
-    plt.close(figure)
-    return path
+    axes[2].set_xticks(range(len(groups)), labels, rotation=40, ha="right", fontsize=9)
+    axes[0].set_title(f"{len(records)} trials; failed trials as grey dots", fontsize=10)
+    return figure
+
+
+def _plot_population(plt, records: list[dict]):
+    """A 2 × 2 grid: success against largest extent and aspect ratio (per trial, jittered),
+    and histograms of the final errors of successes and failures."""
+    figure, axes = plt.subplots(2, 2, figsize=(10, 7))
+    sized = [r for r in records if r.get("object_extent")]
+    success = np.array([r["success"] for r in sized], dtype=float)
+    jitter = np.random.default_rng(0).uniform(-0.04, 0.04, len(sized))
+    extent = np.array([100 * max(r["object_extent"]) for r in sized])
+    aspect = np.array([max(r["object_extent"]) / min(r["object_extent"]) for r in sized])
+    panels = (
+        (axes[0, 0], extent, "largest extent [cm]"),
+        (axes[0, 1], aspect, "aspect ratio (longest / shortest side)"),
+    )
+    for axis, x, label in panels:
+        axis.scatter(x, success + jitter, c=np.where(success > 0, "tab:blue", "grey"), s=14)
+        axis.set_yticks([0, 1], ["failed", "succeeded"])
+        axis.set_xlabel(label)
+    for axis, key, unit in ((axes[1, 0], "pos_err_mm", "mm"), (axes[1, 1], "angle_err_deg", "°")):
+        bins = np.histogram_bin_edges([r[key] for r in records], bins=30)
+        for outcome, colour, name in ((True, "tab:blue", "succeeded"), (False, "grey", "failed")):
+            values = [r[key] for r in records if r["success"] == outcome]
+            if values:
+                axis.hist(values, bins=bins, color=colour, alpha=0.7, label=name)
+        axis.set_xlabel(f"final {key.split('_err')[0]} error [{unit}]")
+        axis.set_ylabel("trials")
+        axis.legend(fontsize=8)
+    objects = len({r["object"] for r in records})
+    rate = 100 * np.mean([r["success"] for r in records])
+    figure.suptitle(f"{objects} objects, {len(records)} trials: {rate:.1f} % succeeded")
+    return figure
 
 
 def save_gif(frames: list[np.ndarray], path: Path, fps: int = 10) -> Path:

@@ -486,8 +486,6 @@ def _run_job(job: _Job) -> TrialRecord:
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
         if job.config.compile:
             quiet_known_inductor_warnings()
-            scene = f"{job.config.env} with {Path(job.config.object).stem}"
-            tqdm.write(compile_notice(scene))
     frames = [] if job.video is not None else None
     env, plant, mpc = _CACHE["env"], _CACHE["plant"], _CACHE["mpc"]
     record = run_trial(job.config, env, plant, mpc, frames, inputs=job.inputs)
@@ -717,9 +715,8 @@ def run_trials(
             _set_aside_with_warning(path, status, found)
         video = folder / f"{config.name}.gif" if folder and config in videos else None
         jobs.append(_Job(config, path, video, inputs[config]))
-    finished = parallel_map(_run_job, jobs, workers, backend, address, on_retry=_warn_retry(jobs))
     with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
-        for index, record in finished:
+        for index, record in _run_jobs(jobs, workers, backend, address):
             if jobs[index].path is not None:
                 write_json(jobs[index].path, record.to_dict())
             records[record.config] = record
@@ -727,6 +724,23 @@ def run_trials(
                 on_record(record, False)
             bar.update()
     return [records[config] for config in configs]
+
+
+def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None):
+    """``(index, record)`` of each of ``jobs`` as it finishes. With several local workers and a
+    compiled MPC, the first job runs alone first: it compiles the MPC's graph into the
+    machine's on-disk cache, which the workers then load instead of each compiling it anew."""
+    compiled = [job.config for job in jobs if job.config.compile]
+    if compiled:
+        tqdm.write(compile_notice(compiled[0].env))
+    first = 0
+    if workers > 1 and backend == "local" and len(jobs) > 1 and jobs[0].config.compile:
+        yield 0, _run_job(jobs[0])
+        first = 1
+    rest = jobs[first:]
+    finished = parallel_map(_run_job, rest, workers, backend, address, on_retry=_warn_retry(rest))
+    for index, record in finished:
+        yield first + index, record
 
 
 def _set_aside_with_warning(path: Path, status: str, found) -> None:

@@ -120,7 +120,9 @@ def test_the_cli_plans_with_each_environments_default_k_and_learn_k_keeps_the_pa
     from torchcontact.learn.scenes import make_scene
 
     assert parse_args(["fingertips"]).stiffness == STIFFNESS == 4.64  # learn-k's best on the cube
-    assert parse_args(["trifinger"]).stiffness == parse_args(["allegro"]).stiffness == 0.5
+    assert parse_args(["allegro"]).stiffness == 0.5
+    assert parse_args(["trifinger"]).stiffness is None  # its shipped model (tests/test_shipped.py)
+    assert parse_args(["trifinger", "--stiffness", "paper"]).stiffness == 0.5
     assert parse_args(["fingertips", "--stiffness", "1"]).stiffness == 1.0
     assert make_scene("fingertips", "cube").paper_stiffness == PAPER_STIFFNESS == 1.0
     assert environment("fingertips").stiffness == PAPER_STIFFNESS

@@ -34,6 +34,7 @@ from torchcontact.mpc.trials import (
 )
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import write_json
+from torchcontact.shipped import SHIPPED
 
 CONFIG = TrialConfig(
     env="fingertips",
@@ -97,8 +98,12 @@ def test_trial_configs_fill_in_the_environments_defaults():
     ]
     first = configs[0]
     assert first.settings == env.preset() and first.max_steps == env.criterion.max_steps
-    assert first.model == DEFAULT_MODEL and first.stiffness == env.default_stiffness == 0.5
-    assert first.relaxation is None and first.learned is None
+    # the TriFinger ships a learned model: the default plans with it, not with a constant K
+    assert first.model == DEFAULT_MODEL and first.stiffness is None and first.learned == SHIPPED
+    assert first.relaxation is None and first.variant == "trifinger"
+    (allegro,) = trial_configs("allegro", [("on-palm", "cube")], [0])
+    assert allegro.stiffness == environment("allegro").default_stiffness == 0.5
+    assert allegro.learned is None
     (qp,) = trial_configs("fingertips", [("rotation", "cube")], [3], PAPER, 7, model="relaxed_qp")
     assert (qp.seed, qp.max_steps, qp.settings) == (3, 7, PAPER)
     assert qp.relaxation == PAPER_RELAXATION and qp.stiffness is None
