@@ -45,10 +45,10 @@ from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ContactModel, RelaxedQP, contact_model
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import read_json, write_json
-from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
 

@@ -15,6 +15,7 @@ from pathlib import Path
 SHIPPED = "shipped"
 """The value of a trial's ``learned`` field that names its environment's shipped model."""
 
+
 def models_dir() -> Path:
     """The installed package's folder of shipped models."""
     from importlib.resources import files

@@ -6,13 +6,12 @@ the object's position [m] and quaternion (w, x, y, z), followed by the robot's j
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import mujoco
 import numpy as np
 import torch
 
 from torchcontact.contacts import Contacts
+from torchcontact.shapes import ObjectMesh
 from torchcontact.sim.detect import ContactDetector
 
 
