@@ -726,21 +726,57 @@ def run_trials(
     return [records[config] for config in configs]
 
 
+BATCH = 4
+"""Trials of one setup (object and settings) a local worker runs in a row, so that it builds
+and compiles (or loads) their MPC once instead of every worker doing so for every object."""
+
+
 def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None):
-    """``(index, record)`` of each of ``jobs`` as it finishes. With several local workers and a
-    compiled MPC, the first job runs alone first: it compiles the MPC's graph into the
-    machine's on-disk cache, which the workers then load instead of each compiling it anew."""
+    """``(index, record)`` of each of ``jobs`` as it finishes.
+
+    With several local workers, each takes up to :data:`BATCH` trials of one setup at a time
+    (writing each record as it finishes), and with a compiled MPC the first trial runs alone
+    first: it compiles the MPC's graph into the machine's on-disk cache, which the workers then
+    load instead of each compiling it anew. On Ray every trial is its own task."""
     compiled = [job.config for job in jobs if job.config.compile]
     if compiled:
         tqdm.write(compile_notice(compiled[0].env))
+    if workers == 1 or backend != "local" or len(jobs) <= 1:
+        finished = parallel_map(_run_job, jobs, workers, backend, address, _warn_retry(jobs))
+        yield from finished
+        return
     first = 0
-    if workers > 1 and backend == "local" and len(jobs) > 1 and jobs[0].config.compile:
+    if jobs[0].config.compile:
         yield 0, _run_job(jobs[0])
         first = 1
-    rest = jobs[first:]
-    finished = parallel_map(_run_job, rest, workers, backend, address, on_retry=_warn_retry(rest))
-    for index, record in finished:
-        yield first + index, record
+    batches = _batches(range(first, len(jobs)), jobs)
+    finished = parallel_map(_run_batch, [[jobs[i] for i in b] for b in batches], workers)
+    for index, records in finished:
+        yield from zip(batches[index], records, strict=True)
+
+
+def _batches(indices, jobs: list[_Job]) -> list[list[int]]:
+    """``indices`` of ``jobs`` in runs of at most :data:`BATCH` consecutive ones of one setup."""
+    batches: list[list[int]] = []
+    for i in indices:
+        last = batches[-1] if batches else None
+        same = last and _setup_key(jobs[last[-1]].config) == _setup_key(jobs[i].config)
+        if same and len(last) < BATCH:
+            last.append(i)
+        else:
+            batches.append([i])
+    return batches
+
+
+def _run_batch(batch: list[_Job]) -> list[TrialRecord]:
+    """Run ``batch`` in a row, each record written as its trial finishes."""
+    records = []
+    for job in batch:
+        record = _run_job(job)
+        if job.path is not None:
+            write_json(job.path, record.to_dict())
+        records.append(record)
+    return records
 
 
 def _set_aside_with_warning(path: Path, status: str, found) -> None:
