@@ -150,6 +150,14 @@ def test_model_state_dict_round_trip(kind):
     assert torch.equal(fresh(Q, b, c, 0.05, q), model(Q, b, c, 0.05, q))
 
 
+def test_constant_exposes_its_value_as_learned():
+    param = Constant(2.5)
+    assert param.value == pytest.approx(2.5)
+    with torch.no_grad():
+        param.log_value.add_(torch.log(torch.tensor(2.0)))
+    assert param.value == pytest.approx(5.0) and isinstance(param.value, float)
+
+
 def test_fixed_constant_is_a_buffer():
     param = parameterization(3.0, learnable=False)
     assert isinstance(param, Constant) and list(param.parameters()) == []

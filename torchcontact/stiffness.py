@@ -59,6 +59,11 @@ class Constant(Parameterization):
         super().__init__()
         _register_log(self, "log_value", _log_positive("value", value), learnable)
 
+    @property
+    def value(self) -> float:
+        """The constant, as a Python float."""
+        return float(self.log_value.detach().exp())
+
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
         return self.log_value.exp()
 
