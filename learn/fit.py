@@ -29,6 +29,7 @@ from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
 from torchcontact.learn.data import Transitions
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_error
+from torchcontact.systems import QuasiDynamic
 from torchcontact.validation import validate_args
 
 
@@ -87,25 +88,63 @@ class StepData:
         """Precompute from :class:`~torchcontact.learn.data.Transitions` (in float64, then
         stored as ``dtype``)."""
         meta = transitions.meta
-        q_index, v_index = object_indices(meta["joints"])
-        contacts = transitions.contacts.to(torch.float64)
-        with validate_args(False):
-            jac, phi, _ = contacts.dual_rows(facets)
         Q, b = system_terms(meta, transitions.u.to(torch.float64))
-        h = float(meta["h"])
+        return cls._precompute(transitions, Q, b, float(meta["h"]), meta["joints"], facets, dtype)
+
+    @classmethod
+    def from_tensors(
+        cls,
+        q: torch.Tensor,
+        u: torch.Tensor,
+        q_next: torch.Tensor,
+        contacts: Contacts,
+        system: QuasiDynamic,
+        h: float,
+        joints: list[str],
+        facets: int = 4,
+        dtype: torch.dtype = torch.float32,
+    ) -> StepData:
+        """Precompute from plain tensors: no dataset folder or manifest.
+
+        Args:
+            q: ``(N, nq)`` states; u: ``(N, n_robot)`` controls; q_next: ``(N, nq)`` the
+                states one step of ``h`` [s] later (all in the layout of ``joints``).
+            contacts: :class:`Contacts` ``(N, ...)`` detected at ``q``.
+            system: the quasi-dynamic system ``u ↦ (Q, b)`` of the model.
+            joints: joint types of q (``"free"`` for the object, see
+                :class:`~torchcontact.integrate.JointLayout`).
+            facets: facets of the model's friction cones.
+        """
+        n = q.shape[0]
+        for name, value in (("u", u), ("q_next", q_next)):
+            if value.shape[0] != n:
+                raise ValueError(f"{name} must have {n} rows like q, got {tuple(value.shape)}")
+        if contacts.phi.shape[0] != n:
+            raise ValueError(f"contacts must have {n} rows like q, got {contacts.phi.shape[0]}")
+        Q, b = system(u.to(torch.float64))
+        data = _Rows(q=q, q_next=q_next, contacts=contacts)
+        return cls._precompute(data, Q.to(torch.float64), b, float(h), joints, facets, dtype)
+
+    @classmethod
+    def _precompute(cls, data, Q, b, h: float, joints, facets: int, dtype) -> StepData:
+        """The pieces of :class:`StepData` from rows with ``q``, ``q_next`` and ``contacts``,
+        ``Q (nv,)`` and ``b (N, nv)`` in float64."""
+        q_index, v_index = object_indices(joints)
+        with validate_args(False):
+            jac, phi, _ = data.contacts.to(torch.float64).dual_rows(facets)
         free = b / Q  # Q⁻¹b (N, nv)
         gap = (jac @ free.unsqueeze(-1)).squeeze(-1)
         rows = v_index.flatten()
         response = jac[..., rows].mT / Q[rows, None] / h
         return cls(
-            q=transitions.q.to(dtype),
-            contacts=transitions.contacts.to(dtype),
+            q=data.q.to(dtype),
+            contacts=data.contacts.to(dtype),
             gap=gap.to(dtype),
             phi=phi.to(dtype),
             free=(free[:, rows] / h).to(dtype),
             response=response.to(dtype),
-            pose=transitions.q[:, q_index].to(dtype),
-            target=transitions.q_next[:, q_index].to(dtype),
+            pose=data.q[:, q_index].to(dtype),
+            target=data.q_next[:, q_index].to(dtype),
             h=h,
         )
 
@@ -120,6 +159,44 @@ class StepData:
             if f.name not in ("contacts", "h")
         }
         return StepData(contacts=self.contacts[index], h=self.h, **tensors)
+
+
+@dataclass
+class _Rows:
+    """Transitions as plain tensors (what :meth:`StepData._precompute` reads)."""
+
+    q: torch.Tensor
+    q_next: torch.Tensor
+    contacts: Contacts
+
+
+def fit_tensors(
+    model: ComplementarityFree,
+    q: torch.Tensor,
+    u: torch.Tensor,
+    q_next: torch.Tensor,
+    contacts: Contacts,
+    system: QuasiDynamic,
+    h: float,
+    joints: list[str],
+    config: FitConfig | None = None,
+    weights: tuple[float, float] = (500.0, 5.0),
+    val_fraction: float = 0.2,
+    progress: bool = True,
+) -> FitResult:
+    """Fit ``model`` to transitions given as plain tensors (see :meth:`StepData.from_tensors`
+    for the arguments), holding out a random ``val_fraction`` of the rows (seeded by
+    ``config.seed``) for early stopping; ``weights``: the pose loss's (w_p, w_q)."""
+    config = FitConfig() if config is None else config
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction!r}")
+    data = StepData.from_tensors(q, u, q_next, contacts, system, h, joints, model.facets)
+    order = torch.randperm(len(data), generator=torch.Generator().manual_seed(config.seed))
+    held = max(1, int(round(val_fraction * len(data))))
+    if held >= len(data):
+        raise ValueError(f"q must have at least 2 rows to split, got {len(data)}")
+    train, val = data.select(order[held:]), data.select(order[:held])
+    return fit(model, train, val, weights, config, progress)
 
 
 def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:

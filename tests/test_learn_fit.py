@@ -16,7 +16,7 @@ from torchcontact.checkpoint import (
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import one_step_error, rollout_error, sweep_constant
-from torchcontact.learn.fit import StepData, fit, predict_poses, system_terms
+from torchcontact.learn.fit import StepData, fit, fit_tensors, predict_poses, system_terms
 from torchcontact.learn.scenes import make_scene
 
 
@@ -68,6 +68,37 @@ def test_fit_recovers_a_known_constant_stiffness(transitions):
     )
     assert result.model.stiffness.log_value.detach().exp().item() == pytest.approx(2.5, rel=0.03)
     assert result.val_loss <= min(row["val_loss"] for row in result.history)
+
+
+def test_plain_tensors_give_the_datasets_step_and_recover_a_known_stiffness(transitions):
+    """``fit_tensors`` needs no dataset folder or manifest: the scene's system and the rows."""
+    meta = transitions.meta
+    system = make_scene("trifinger", "cube").system
+    rows = (transitions.q, transitions.u, transitions.q_next, transitions.contacts)
+    plain = StepData.from_tensors(*rows, system, meta["h"], meta["joints"], meta["facets"])
+    stored = StepData.from_transitions(transitions, meta["facets"])
+    for field in ("gap", "phi", "free", "response", "pose", "target"):
+        torch.testing.assert_close(getattr(plain, field), getattr(stored, field))
+    synthetic = _synthetic(transitions, 2.5)
+    config = FitConfig(
+        stiffness="constant", damping="paper", epochs=150, batch_size=64, lr=0.05, patience=150
+    )
+    result = fit_tensors(
+        build_model(config, meta),
+        synthetic.q,
+        synthetic.u,
+        synthetic.q_next,
+        synthetic.contacts,
+        system,
+        meta["h"],
+        meta["joints"],
+        config,
+        tuple(meta["pose_weights"]),
+        progress=False,
+    )
+    assert result.model.stiffness.value == pytest.approx(2.5, rel=0.03)
+    with pytest.raises(ValueError, match="u must have"):
+        StepData.from_tensors(transitions.q, transitions.u[:3], *rows[2:], system, 0.1, ["free"])
 
 
 def test_learned_network_beats_the_initial_model_on_its_training_loss(transitions):
