@@ -120,6 +120,7 @@ def generate(
         raise ValueError("extent and scale both set the object's size: give one of them")
     if collision not in COLLISIONS:
         raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
+    mass = _positive("mass", mass)
     rng = np.random.default_rng([GENERATOR_VERSION, _seed(seed)])
     count = int(rng.integers(PARTS[0], PARTS[1] + 1))
     parts = _parts(rng, count)
@@ -133,7 +134,7 @@ def generate(
     # the drawn sides by rank onto the resting axes: an axis-aligned stretch keeps the resting
     # face horizontal and the centre of mass over it, and sets the aspect ratio exactly
     size = sides[np.argsort(np.argsort(rested.size))] * largest
-    obj = assemble(name(seed), rested.parts, size, _positive("mass", mass))
+    obj = assemble(name(seed), rested.parts, size, mass)
     hull = collision != "parts" and len(obj.parts) > 1
     return dataclasses.replace(obj, collide_hull=True) if hull else obj
 
