@@ -89,7 +89,8 @@ class StepData:
         stored as ``dtype``)."""
         meta = transitions.meta
         Q, b = system_terms(meta, transitions.u.to(torch.float64))
-        return cls._precompute(transitions, Q, b, float(meta["h"]), meta["joints"], facets, dtype)
+        rows = (transitions.q, transitions.q_next, transitions.contacts)
+        return cls._precompute(*rows, Q, b, float(meta["h"]), meta["joints"], facets, dtype)
 
     @classmethod
     def from_tensors(
@@ -122,30 +123,30 @@ class StepData:
         if contacts.phi.shape[0] != n:
             raise ValueError(f"contacts must have {n} rows like q, got {contacts.phi.shape[0]}")
         Q, b = system(u.to(torch.float64))
-        data = _Rows(q=q, q_next=q_next, contacts=contacts)
-        return cls._precompute(data, Q.to(torch.float64), b, float(h), joints, facets, dtype)
+        rows = (q, q_next, contacts)
+        return cls._precompute(*rows, Q.to(torch.float64), b, h, joints, facets, dtype)
 
     @classmethod
-    def _precompute(cls, data, Q, b, h: float, joints, facets: int, dtype) -> StepData:
-        """The pieces of :class:`StepData` from rows with ``q``, ``q_next`` and ``contacts``,
+    def _precompute(cls, q, q_next, contacts, Q, b, h, joints, facets: int, dtype) -> StepData:
+        """The pieces of :class:`StepData` from the rows ``q``, ``q_next`` and ``contacts``,
         ``Q (nv,)`` and ``b (N, nv)`` in float64."""
         q_index, v_index = object_indices(joints)
         with validate_args(False):
-            jac, phi, _ = data.contacts.to(torch.float64).dual_rows(facets)
+            jac, phi, _ = contacts.to(torch.float64).dual_rows(facets)
         free = b / Q  # Q⁻¹b (N, nv)
         gap = (jac @ free.unsqueeze(-1)).squeeze(-1)
         rows = v_index.flatten()
         response = jac[..., rows].mT / Q[rows, None] / h
         return cls(
-            q=data.q.to(dtype),
-            contacts=data.contacts.to(dtype),
+            q=q.to(dtype),
+            contacts=contacts.to(dtype),
             gap=gap.to(dtype),
             phi=phi.to(dtype),
             free=(free[:, rows] / h).to(dtype),
             response=response.to(dtype),
-            pose=data.q[:, q_index].to(dtype),
-            target=data.q_next[:, q_index].to(dtype),
-            h=h,
+            pose=q[:, q_index].to(dtype),
+            target=q_next[:, q_index].to(dtype),
+            h=float(h),
         )
 
     def __len__(self) -> int:
@@ -159,15 +160,6 @@ class StepData:
             if f.name not in ("contacts", "h")
         }
         return StepData(contacts=self.contacts[index], h=self.h, **tensors)
-
-
-@dataclass
-class _Rows:
-    """Transitions as plain tensors (what :meth:`StepData._precompute` reads)."""
-
-    q: torch.Tensor
-    q_next: torch.Tensor
-    contacts: Contacts
 
 
 def fit_tensors(

@@ -716,8 +716,8 @@ def run_trials(
         video = folder / f"{config.name}.gif" if folder and config in videos else None
         jobs.append(_Job(config, path, video, inputs[config]))
     with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
-        for index, record in _run_jobs(jobs, workers, backend, address):
-            if jobs[index].path is not None:
+        for index, record, written in _run_jobs(jobs, workers, backend, address):
+            if jobs[index].path is not None and not written:
                 write_json(jobs[index].path, record.to_dict())
             records[record.config] = record
             if on_record is not None:
@@ -732,7 +732,8 @@ and compiles (or loads) their MPC once instead of every worker doing so for ever
 
 
 def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None):
-    """``(index, record)`` of each of ``jobs`` as it finishes.
+    """``(index, record, written)`` of each of ``jobs`` as it finishes; ``written``: whether its
+    worker already wrote the record to the job's path.
 
     With several local workers, each takes up to :data:`BATCH` trials of one setup at a time
     (writing each record as it finishes), and with a compiled MPC the first trial runs alone
@@ -743,16 +744,18 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
         tqdm.write(compile_notice(compiled[0].env))
     if workers == 1 or backend != "local" or len(jobs) <= 1:
         finished = parallel_map(_run_job, jobs, workers, backend, address, _warn_retry(jobs))
-        yield from finished
+        for index, record in finished:
+            yield index, record, False
         return
     first = 0
     if jobs[0].config.compile:
-        yield 0, _run_job(jobs[0])
+        yield 0, _run_job(jobs[0]), False
         first = 1
     batches = _batches(range(first, len(jobs)), jobs)
     finished = parallel_map(_run_batch, [[jobs[i] for i in b] for b in batches], workers)
     for index, records in finished:
-        yield from zip(batches[index], records, strict=True)
+        for job_index, record in zip(batches[index], records, strict=True):
+            yield job_index, record, True
 
 
 def _batches(indices, jobs: list[_Job]) -> list[list[int]]:
