@@ -35,6 +35,6 @@ def compile_notice(scene: str) -> str:
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
     return (
-        f"compiling the MPC for {scene}: a minute or two per graph on this machine's first "
-        f"run, then loaded from the cache in {cache_dir()}"
+        f"compiling the MPC for {scene} (first run only, a minute or two per graph, cached in "
+        f"{cache_dir()}); meanwhile the MPC plans eagerly, slower"
     )

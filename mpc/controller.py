@@ -10,6 +10,7 @@ in; :meth:`ContactImplicitMPC.from_env` builds the MPC of an environment's plant
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import ContactModel, contact_model
 from torchcontact.mpc import planners
+from torchcontact.mpc.background import BackgroundCompile, graph_key
 from torchcontact.mpc.planners import LBFGS, Objective, Planner
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import QuasiDynamic
@@ -49,6 +51,7 @@ class Plan:
     iterations: int
     evaluations: int
     solve_ms: float
+    compiled: bool = False  # planned by the compiled graph (not eagerly while it compiles)
 
 
 class ContactImplicitMPC:
@@ -70,6 +73,11 @@ class ContactImplicitMPC:
         dtype: of the solve.
         gaps: ``"frozen"`` or ``"propagated"`` distances over the horizon, see
             :data:`~torchcontact.environments.presets.GAPS`.
+        background_compile: with ``compile``, compile each new graph in a background thread
+            and plan eagerly until it is ready, instead of waiting for it; a graph this
+            machine has compiled before is loaded at once (see
+            :mod:`~torchcontact.mpc.background`). Needs a planner with an ``eager()`` method
+            (L-BFGS has one); :attr:`Plan.compiled` tells which steps the graph planned.
     """
 
     def __init__(
@@ -87,6 +95,7 @@ class ContactImplicitMPC:
         compile: bool = False,
         dtype: torch.dtype = torch.float64,
         gaps: str = "frozen",
+        background_compile: bool = False,
     ):
         if not isinstance(horizon, int) or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
@@ -107,10 +116,11 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
-        self._differentiate = (
-            torch.compile(self.differentiate, dynamic=False) if compile else self.differentiate
-        )
+        self._differentiate = self._compiled_differentiate()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
+        background = compile and background_compile and hasattr(self.planner, "eager")
+        self._background = BackgroundCompile() if background else None
+        self._eager_planner = self.planner.eager() if background else None
 
     @classmethod
     def from_env(
@@ -121,6 +131,7 @@ class ContactImplicitMPC:
         planner: Planner | str = "lbfgs",
         settings: MPCSettings | str | None = None,
         cost: Cost | str | None = None,
+        background_compile: bool = False,
     ) -> ContactImplicitMPC:
         """The MPC of ``env``'s ``plant``: its system (the plant's object mass), layout,
         fingertips, cost, control box and h.
@@ -131,7 +142,8 @@ class ContactImplicitMPC:
         ``env.default_stiffness``;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
         built with the settings' iterations, memory and compilation; ``settings``: solver
-        settings or a preset name (default the environment's default preset).
+        settings or a preset name (default the environment's default preset);
+        ``background_compile``: as in the constructor.
         """
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
@@ -162,15 +174,44 @@ class ContactImplicitMPC:
             compile=settings.compile,
             dtype=dtype,
             gaps=settings.gaps,
+            background_compile=background_compile,
         )
 
     def reset(self) -> None:
         """Forget the warm start (call between episodes)."""
         self._warm.zero_()
 
-    def freeze(self, q: torch.Tensor, contacts: Contacts):
-        """The model's step frozen at the contacts detected at ``q (nq,)``."""
-        return self.model.freeze(contacts, self.h, q, compile=self.compiled)
+    def __getstate__(self) -> dict:
+        """Pickled (for a background compile) without its compiled callables and child."""
+        state = self.__dict__.copy()
+        state.update(_differentiate=None, _background=None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._differentiate = self._compiled_differentiate()
+
+    def _compiled_differentiate(self) -> Callable:
+        """:meth:`differentiate`, through ``torch.compile`` when the MPC compiles."""
+        if not self.compiled:
+            return self.differentiate
+        return torch.compile(self.differentiate, dynamic=False)
+
+    @property
+    def compiling(self) -> bool:
+        """Whether a background compile (``background_compile``) is running."""
+        return self._background is not None and self._background.compiling
+
+    def wait_for_compile(self) -> None:
+        """Block until a background compile (``background_compile``) has finished."""
+        if self._background is not None:
+            self._background.wait()
+
+    def freeze(self, q: torch.Tensor, contacts: Contacts, compiled: bool | None = None):
+        """The model's step frozen at the contacts detected at ``q (nq,)``; its inner
+        iterations compiled as ``compiled`` (default: as the MPC)."""
+        compiled = self.compiled if compiled is None else compiled
+        return self.model.freeze(contacts, self.h, q, compile=compiled)
 
     def rollout(self, q0, controls, frozen) -> torch.Tensor:
         """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
@@ -210,6 +251,13 @@ class ContactImplicitMPC:
         frozen = frozen.linearized(*self.system(controls))
         return self._differentiate(controls, q0, frozen, target_p, target_quat)
 
+    def _eager_value_and_grad(
+        self, controls, q0, frozen, target_p, target_quat
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`value_and_grad`, never compiled."""
+        frozen = frozen.linearized(*self.system(controls))
+        return self.differentiate(controls, q0, frozen, target_p, target_quat)
+
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
 
@@ -229,6 +277,11 @@ class ContactImplicitMPC:
         f, grad = self.value_and_grad(x.unflatten(-1, (self.horizon, -1)), *args)
         return f, grad.flatten(-2)
 
+    def _flat_eager_value_and_grad(self, x: torch.Tensor, *args):
+        """:meth:`_flat_value_and_grad`, never compiled."""
+        f, grad = self._eager_value_and_grad(x.unflatten(-1, (self.horizon, -1)), *args)
+        return f, grad.flatten(-2)
+
     def _flat_differentiate(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`differentiate` of flat controls ``x (N, T·n_u)``, for a traced planner."""
         f, grad = self.differentiate(x.unflatten(-1, (self.horizon, -1)), *args)
@@ -244,17 +297,12 @@ class ContactImplicitMPC:
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
-        with torch.no_grad():
-            frozen = self.freeze(q, contacts)
-        traceable = self._flat_differentiate if self.compiled and frozen.traceable else None
-        objective = Objective(self._flat_value_and_grad, traceable)
-        with validate_args(False):
-            result = self.planner.plan(
-                objective,
-                self._warm.clone(),
-                (self.lower, self.upper),
-                args=(q, frozen, target_p, target_quat),
-            )
+        inputs = (q, contacts, target_p, target_quat, self._warm.clone())
+        compiled = self.compiled
+        if self._background is not None:
+            warmup = functools.partial(self._solve, *inputs, compiled=True)  # for the child
+            compiled = self._background.ready(self._graph_key(contacts), warmup)
+        result = self._solve(*inputs, compiled=compiled)
         controls = result.x.reshape(self.horizon, self.system.n_robot)
         self._warm = torch.cat([controls[1:], controls[-1:]]).reshape(1, -1)
         return Plan(
@@ -264,4 +312,29 @@ class ContactImplicitMPC:
             iterations=result.iterations,
             evaluations=result.evaluations,
             solve_ms=1e3 * (time.perf_counter() - start),
+            compiled=compiled,
         )
+
+    def _solve(self, q, contacts, target_p, target_quat, warm, compiled: bool):
+        """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager."""
+        with torch.no_grad():
+            frozen = self.freeze(q, contacts, compiled)
+        if compiled:
+            traceable = self._flat_differentiate if frozen.traceable else None
+            objective = Objective(self._flat_value_and_grad, traceable)
+            planner = self.planner
+        else:
+            objective = Objective(self._flat_eager_value_and_grad)
+            planner = self.planner if self._eager_planner is None else self._eager_planner
+        with validate_args(False):
+            return planner.plan(
+                objective, warm, (self.lower, self.upper), args=(q, frozen, target_p, target_quat)
+            )
+
+    def _graph_key(self, contacts: Contacts) -> str:
+        """What the compiled graph of a solve at ``contacts`` is specialised to."""
+        return graph_key(
+            self.model, self.cost, self.fingertips, self.layout, self.planner, self.system,
+            self.horizon, self.h, self.dtype, self.gaps, contacts.slots, contacts.nv,
+            self.lower, self.upper,
+        )  # fmt: skip

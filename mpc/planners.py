@@ -69,6 +69,10 @@ class LBFGS:
     def __init__(self, max_iter: int = 30, memory: int = 8, compile: bool = False):
         self.max_iter, self.memory, self.compile = max_iter, memory, compile
 
+    def eager(self) -> LBFGS:
+        """The same planner, not compiled: the same iterates up to rounding."""
+        return LBFGS(self.max_iter, self.memory, compile=False)
+
     def plan(self, objective: Objective, x0, box, args: tuple = ()) -> PlannerResult:
         lower, upper = box
         traced = self.compile and objective.traceable is not None

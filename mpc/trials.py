@@ -265,6 +265,7 @@ class TrialRecord:
     object_mass_kg: float | None = None
     object_friction_mu: float | None = None
     object_collision: str | None = None
+    eager_steps: list[int] | None = None
     inputs: dict | None = None
 
     def to_dict(self) -> dict:
@@ -277,8 +278,9 @@ class TrialRecord:
         """The record of :meth:`to_dict` (its configuration completed by legacy defaults; no
         ``inputs`` in records written before them)."""
         names = [f.name for f in fields(cls) if f.name not in ("config", "inputs")]
-        outcome = {name: record[name] for name in names if name not in OBJECT_FACTS}
-        outcome.update({name: record.get(name) for name in OBJECT_FACTS})
+        optional = (*OBJECT_FACTS, "eager_steps")
+        outcome = {name: record[name] for name in names if name not in optional}
+        outcome.update({name: record.get(name) for name in optional})
         config = TrialConfig(**stored_config(record))
         return cls(config=config, inputs=record.get("inputs"), **outcome)
 
@@ -366,7 +368,7 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
     mpc = ContactImplicitMPC.from_env(
-        env, plant, model, config.planner, config.settings, config.cost
+        env, plant, model, config.planner, config.settings, config.cost, background_compile=True
     )
     return env, plant, mpc
 
@@ -395,7 +397,7 @@ def run_trial(
     aim = env.aim(plant, target)
     target_p, target_quat = torch.as_tensor(aim[:3]), torch.as_tensor(aim[3:])
     times = {"detect_ms": [], "solve_ms": [], "sim_ms": []}
-    iterations, found = [], []
+    iterations, found, eager = [], [], []
     for step in range(criterion.max_steps):
         t0 = time.perf_counter()
         contacts = plant.contacts(mpc.dtype)
@@ -408,6 +410,8 @@ def run_trial(
         for key, (a, b) in zip(times, ((t0, t1), (t1, t2), (t2, t3)), strict=True):
             times[key].append(1e3 * (b - a))
         iterations.append(plan.iterations)
+        if mpc.compiled and not plan.compiled:
+            eager.append(step)
         if frames is not None and step % frame_every == 0:
             frames.append(plant.render())
         if tracker.update(plant.state()[:7]):
@@ -432,6 +436,7 @@ def run_trial(
         contacts_found_max=max(found),
         steps_with_dropped_contacts=sum(n > slots for n in found),
         **object_facts(plant),
+        eager_steps=eager,
         inputs=inputs,
         **times,
     )
@@ -479,6 +484,8 @@ def _run_job(job: _Job) -> TrialRecord:
     torch.set_num_threads(1)
     key = _setup_key(job.config)
     if _CACHE.get("key") != key:
+        if "mpc" in _CACHE:
+            _CACHE["mpc"].wait_for_compile()  # its thread must not outlive the reset below
         _CACHE.clear()
         # A new object brings new tensor shapes: drop the previous compiled graphs, or dynamo
         # reaches its recompile limit after a few objects and silently runs eager from then on.
@@ -514,6 +521,7 @@ _OUTCOME_KINDS = {
     **dict.fromkeys(("initial_pose", "target_pose", "aim_pose", "final_pose"), "pose"),
     **dict.fromkeys(("detect_ms", "solve_ms", "sim_ms"), "numbers"),
     "iterations": "ints",
+    "eager_steps": "ints?",  # absent from records written before background compiles
 }
 _ITEM_KINDS = {"numbers": "number", "ints": "int", "strs": "str", "pose": "number"}
 
@@ -749,13 +757,24 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
         return
     first = 0
     if jobs[0].config.compile:
-        yield 0, _run_job(jobs[0]), False
+        record = _run_job(jobs[0])
+        _CACHE["mpc"].wait_for_compile()  # the graph in the cache before the workers start
+        yield 0, record, False
         first = 1
     batches = _batches(range(first, len(jobs)), jobs)
     finished = parallel_map(_run_batch, [[jobs[i] for i in b] for b in batches], workers)
     for index, records in finished:
         for job_index, record in zip(batches[index], records, strict=True):
             yield job_index, record, True
+
+
+def finish_compiling() -> None:
+    """Wait, saying so, for this process's background compile, if one runs: its graph is then
+    cached for the next run (the process would wait for it at exit anyway, silently)."""
+    mpc = _CACHE.get("mpc")
+    if mpc is not None and mpc.compiling:
+        tqdm.write("the trials are done; finishing the MPC's compile for the next runs")
+        mpc.wait_for_compile()
 
 
 def _batches(indices, jobs: list[_Job]) -> list[list[int]]:

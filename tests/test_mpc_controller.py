@@ -17,6 +17,7 @@ from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import integrate
 from torchcontact.model import contact_model
+from torchcontact.mpc import background
 from torchcontact.mpc.controller import CONTACT_BUCKET, ContactImplicitMPC
 from torchcontact.mpc.planners import LBFGS
 from torchcontact.relaxed_qp import paper_relaxation
@@ -261,6 +262,26 @@ def test_compiled_plan_matches_the_eager_plan(env, gaps):
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_a_background_compile_plans_eagerly_until_its_graph_is_ready(env, tmp_path, monkeypatch):
+    """With ``background_compile`` the first plan is the eager MPC's, bit for bit, while a
+    child compiles the graph (the settings of the test above: its graph is in the cache); once
+    the child is done, plans are the compiled graph's, and the graph is marked as compiled."""
+    monkeypatch.setattr(background, "_marks", lambda: tmp_path)
+    q, contacts = _touching_state(env)
+    settings = MPCSettings(horizon=2, max_iter=8, gaps="frozen")
+    eager = _mpc(env, horizon=2, max_iter=8, gaps="frozen")
+    mpc = ContactImplicitMPC.from_env(FINGERTIPS, env, settings=settings, background_compile=True)
+    first, expected = mpc.plan(q, contacts, *TARGET), eager.plan(q, contacts, *TARGET)
+    assert not first.compiled and mpc.compiling
+    assert torch.equal(first.controls, expected.controls)
+    mpc.wait_for_compile()
+    assert not mpc.compiling and len(list(tmp_path.iterdir())) == 1
+    second, expected = mpc.plan(q, contacts, *TARGET), eager.plan(q, contacts, *TARGET)
+    assert second.compiled
+    torch.testing.assert_close(second.controls, expected.controls, rtol=0, atol=1e-10)
 
 
 def test_a_planner_passed_in_is_the_one_that_plans(env):

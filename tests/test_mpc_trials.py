@@ -312,6 +312,21 @@ def test_summary_counts_falls_and_reads_them_from_older_records():
     assert summarize([record(True), record(poses=False)])["falls"] is None
 
 
+def test_solve_times_leave_out_the_steps_planned_while_compiling():
+    """Steps planned eagerly while the graph compiled are not the compiled MPC's speed; a
+    sweep none of whose steps was compiled reports them all."""
+    base = {"success": True, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
+            "steps": 3, "detect_ms": [1.0], "sim_ms": [1.0], "iterations": [1]}  # fmt: skip
+    eager_first = {**base, "solve_ms": [100.0, 120.0, 3.0], "eager_steps": [0, 1]}
+    compiled = {**base, "solve_ms": [4.0, 5.0, 6.0], "eager_steps": []}
+    all_eager = {**base, "solve_ms": [90.0, 110.0], "eager_steps": [0, 1]}
+    summary = summarize([eager_first, compiled, all_eager])
+    assert summary["solve_ms_median"] == 4.5 and summary["eager_steps"] == 4
+    assert summarize([all_eager])["solve_ms_median"] == 100.0
+    older = {**base, "solve_ms": [2.0, 7.0]}  # records from before eager steps were kept
+    assert summarize([older])["solve_ms_median"] == 4.5 and summarize([older])["eager_steps"] == 0
+
+
 @pytest.fixture(scope="module")
 def fast_record() -> dict:
     """The JSON of trial 0 of :data:`FAST`, run once, writing nothing."""

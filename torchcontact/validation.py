@@ -9,11 +9,13 @@ under ``torch.func`` transforms, nor of ``meta`` tensors.
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Iterator
 
 import torch
 
 _VALIDATE = True
+_LOCAL = threading.local()  # .value: the innermost validate_args of this thread, if any
 
 
 def set_validate_args(value: bool) -> None:
@@ -24,13 +26,19 @@ def set_validate_args(value: bool) -> None:
 
 @contextlib.contextmanager
 def validate_args(value: bool) -> Iterator[None]:
-    """Context manager form of :func:`set_validate_args`."""
-    previous = _VALIDATE
-    set_validate_args(value)
+    """Turn value checks on or off in this thread inside the block (over
+    :func:`set_validate_args`); other threads keep theirs."""
+    previous = getattr(_LOCAL, "value", None)
+    _LOCAL.value = bool(value)
     try:
         yield
     finally:
-        set_validate_args(previous)
+        _LOCAL.value = previous
+
+
+def _validating() -> bool:
+    local = getattr(_LOCAL, "value", None)
+    return _VALIDATE if local is None else local
 
 
 def checking_values(*tensors: object) -> bool:
@@ -38,8 +46,8 @@ def checking_values(*tensors: object) -> bool:
     (vmap), whose batched tensors cannot be read on the host, nor when any of ``tensors`` is a
     ``meta`` tensor (shapes without values)."""
     return (
-        _VALIDATE
-        and not torch.compiler.is_compiling()
+        not torch.compiler.is_compiling()  # first: no thread-local read while tracing
+        and _validating()
         and torch._C._functorch.maybe_current_level() is None
         and not any(isinstance(x, torch.Tensor) and x.is_meta for x in tensors)
     )

@@ -1,0 +1,52 @@
+"""Compiling in a child process while the caller plans eagerly: which graphs are ready when."""
+
+import functools
+import operator
+import time
+
+import pytest
+
+from torchcontact.mpc import background
+from torchcontact.mpc.background import BackgroundCompile, describe, graph_key
+from torchcontact.mpc.planners import LBFGS
+
+
+@pytest.fixture
+def marks(tmp_path, monkeypatch):
+    monkeypatch.setattr(background, "_marks", lambda: tmp_path)
+    return tmp_path
+
+
+def _never():
+    raise AssertionError("a marked graph must not be compiled again")
+
+
+def test_a_marked_graph_is_ready_at_once(marks):
+    (marks / "k").touch()
+    compiler = BackgroundCompile()
+    assert compiler.ready("k", _never) and not compiler.compiling
+
+
+def test_an_unmarked_graph_compiles_in_a_child_and_is_marked(marks):
+    compiler = BackgroundCompile()
+    slow = functools.partial(time.sleep, 1.0)
+    assert not compiler.ready("k", slow) and compiler.compiling
+    assert not compiler.ready("other", slow)  # one child at a time
+    compiler.wait()
+    assert (marks / "k").exists() and not (marks / "other").exists()
+    assert compiler.ready("k", _never)
+
+
+def test_a_failing_child_is_an_error(marks):
+    compiler = BackgroundCompile()
+    assert not compiler.ready("k", functools.partial(operator.truediv, 1, 0))
+    with pytest.raises(RuntimeError, match="background process failed"):
+        compiler.wait()
+    assert not (marks / "k").exists()
+
+
+def test_a_graph_key_is_stable_and_tells_settings_apart():
+    assert "0x" not in describe(LBFGS(max_iter=5))
+    assert graph_key(LBFGS(max_iter=5), 4) == graph_key(LBFGS(max_iter=5), 4)
+    assert graph_key(LBFGS(max_iter=5), 4) != graph_key(LBFGS(max_iter=6), 4)
+    assert graph_key(LBFGS(max_iter=5), 4) != graph_key(LBFGS(max_iter=5), 8)
