@@ -87,7 +87,10 @@ class LBFGS:
             args=args,
             compile_fun=traced,
         )
-        return PlannerResult(result.x, result.f, int(result.n_iter), int(result.n_evals))
+        # the most rounds any problem ran; the points evaluated over all problems
+        return PlannerResult(
+            result.x, result.f, int(result.n_iter.max()), int(result.n_evals.sum())
+        )
 
 
 PLANNERS: dict[str, Callable[..., Planner]] = {"lbfgs": LBFGS}

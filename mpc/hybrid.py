@@ -1,0 +1,117 @@
+"""Sampling to choose the basin, L-BFGS to polish in it: the ``hybrid`` planner.
+
+A local planner warm-started from its previous plan stays in that plan's basin: a stall (a grasp
+from which the model predicts no turn) or a plan heading for a fall is improved only where the
+gradient points. The closed-form model evaluates many plans in one batched call, so:
+
+1. **Sampling** (cross-entropy method, seeded): ``samples`` plans around the warm start, spread
+   ``spread`` × the box's half-width; the ``elites`` lowest-cost refit the mean and spread,
+   ``rounds`` times. The warm start itself is always one of the samples.
+2. **Multi-start L-BFGS**: box-projected L-BFGS from the warm start, from zero and from the
+   ``starts − 2`` best samples, all in one batched solve (rows independent).
+3. The plan of lowest model cost is returned. Since the warm start's row is plain L-BFGS from
+   the warm start, the result never costs more than plain L-BFGS's (up to rounding).
+
+The objective must accept any number of rows with its arguments shared by all of them, as the
+MPC's does; each problem of a batch ``x0 (B, n)`` is planned on its own.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from torchcontact.mpc.planners import LBFGS, Objective, PlannerResult, register_planner
+
+
+class Hybrid:
+    """Cross-entropy sampling seeding a batched multi-start L-BFGS (see the module docstring).
+
+    Args:
+        max_iter, memory, compile: of the L-BFGS stage (:class:`LBFGS`).
+        samples: plans per sampling round (≥ 2); rounds: sampling rounds (0: no sampling, the
+            starts are the warm start, zero and nothing else); elites: samples that refit the
+            distribution (1 ≤ elites ≤ samples); starts: L-BFGS starts (≥ 1: the warm start,
+            then zero, then the best samples); spread: the first round's standard deviation as
+            a fraction of the box's half-width (> 0); seed: of the sampling, the same every
+            call, so a plan depends only on its inputs.
+    """
+
+    def __init__(
+        self,
+        max_iter: int = 30,
+        memory: int = 8,
+        compile: bool = False,
+        samples: int = 32,
+        rounds: int = 2,
+        elites: int = 4,
+        starts: int = 4,
+        spread: float = 0.5,
+        seed: int = 0,
+    ):
+        for name, value, least in (("samples", samples, 2), ("rounds", rounds, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"{name} must be an integer ≥ {least}, got {value!r}")
+        if isinstance(elites, bool) or not isinstance(elites, int) or not 1 <= elites <= samples:
+            raise ValueError(f"elites must be an integer in [1, samples={samples}], got {elites!r}")
+        if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+            raise ValueError(f"starts must be a positive integer, got {starts!r}")
+        if not spread > 0:
+            raise ValueError(f"spread must be positive, got {spread!r}")
+        self.max_iter, self.memory, self.compile = max_iter, memory, compile
+        self.samples, self.rounds, self.elites = samples, rounds, elites
+        self.starts, self.spread, self.seed = starts, float(spread), int(seed)
+        self.polish = LBFGS(max_iter, memory, compile)
+
+    def eager(self) -> Hybrid:
+        """The same planner, not compiled."""
+        return Hybrid(
+            self.max_iter, self.memory, False, self.samples, self.rounds, self.elites,
+            self.starts, self.spread, self.seed,
+        )  # fmt: skip
+
+    def plan(self, objective: Objective, x0, box, args: tuple = ()) -> PlannerResult:
+        lower, upper = (bound.expand_as(x0) for bound in box)
+        x0 = torch.clamp(x0, lower, upper)
+        problems, n = x0.shape
+        candidates, evaluations = [x0, torch.clamp(torch.zeros_like(x0), lower, upper)], 0
+        if self.rounds and self.starts > 2:
+            best, evaluations = self._sample(objective, x0, lower, upper, args)
+            candidates.append(best.transpose(0, 1).reshape(-1, n))  # (S·B, n) start-major
+        starts = torch.cat(candidates)[: self.starts * problems]  # row s·B + b: start s of b
+        count = starts.shape[0] // problems
+        bounds = (lower.repeat(count, 1), upper.repeat(count, 1))
+        result = self.polish.plan(objective, starts, bounds, args)
+        f = result.f.view(count, problems)
+        choice = f.argmin(0)
+        index = torch.arange(problems, device=x0.device)
+        x = result.x.view(count, problems, n)[choice, index]
+        total = evaluations + result.evaluations
+        return PlannerResult(x, f[choice, index], result.iterations, total)
+
+    def _sample(self, objective: Objective, x0, lower, upper, args):
+        """The ``starts − 2`` lowest-cost plans ``(B, starts − 2, n)`` of the sampling rounds,
+        and the number of objective evaluations."""
+        problems, n = x0.shape
+        generator = torch.Generator(device=x0.device).manual_seed(self.seed)
+        mean, std = x0, self.spread * (upper - lower) / 2
+        kept_x = x0.new_empty(problems, 0, n)
+        kept_f = x0.new_empty(problems, 0)
+        for _ in range(self.rounds):
+            noise = torch.randn(
+                (problems, self.samples, n), generator=generator, dtype=x0.dtype, device=x0.device
+            )
+            noise[:, 0] = 0  # the mean itself: round 1 keeps the warm start among the samples
+            x = torch.clamp(mean[:, None] + std[:, None] * noise, lower[:, None], upper[:, None])
+            f, _ = objective.value_and_grad(x.reshape(-1, n), *args)
+            f = f.view(problems, self.samples)
+            order = f.argsort(dim=1)[:, : self.elites]
+            elites = torch.gather(x, 1, order[..., None].expand(-1, -1, n))
+            mean, std = elites.mean(1), elites.std(1, unbiased=False)
+            kept_x, kept_f = torch.cat([kept_x, x], 1), torch.cat([kept_f, f], 1)
+        kept_f[:, 0] = torch.inf  # the warm start: a start already
+        best = kept_f.argsort(dim=1)[:, : self.starts - 2]
+        chosen = torch.gather(kept_x, 1, best[..., None].expand(-1, -1, n))
+        return chosen, self.rounds * self.samples * problems
+
+
+register_planner("hybrid", Hybrid)
