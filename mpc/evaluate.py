@@ -377,7 +377,11 @@ def main(argv: list[str] | None = None) -> int:
     for option, path in (("--json", args.json), ("--figure", args.figure)):
         if path is not None:
             writable_file(option, path)
-    print(f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}")
+    planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
+    print(
+        f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}"
+        f"{planner}"
+    )
     for line in describe_objects(args):
         print(line)
     print(report.TABLE_HEADER)
