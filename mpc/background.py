@@ -2,10 +2,11 @@
 
 On a machine's first run a compiled MPC step takes a minute or more to compile (after that it
 loads from Inductor's on-disk cache in seconds). Instead of waiting, the MPC can plan those
-steps eagerly, with the same model, cost and planner (about 11× slower per step and equal up to
-rounding, not bit for bit), while a child process compiles the graph into the cache, and load
-it once that is done. A process rather than a thread: compiling is mostly Python, and in a
-thread it would share the interpreter lock with the eager planning and slow both 2–3×.
+steps eagerly, with the same model, cost and planner (tens of times slower per step, about 40×
+on the fingertips, and equal up to rounding, not bit for bit), while a child process compiles
+the graph into the cache, and load it once that is done. A process rather than a thread:
+compiling is mostly Python, and in a thread it would share the interpreter lock with the eager
+planning and slow both.
 
 A graph the child finished is marked in the cache directory; a marked graph is loaded in the
 foreground, as is every graph where no child can be started (inside a daemonic pool worker),

@@ -73,7 +73,7 @@ class ContactImplicitMPC:
         dtype: of the solve.
         gaps: ``"frozen"`` or ``"propagated"`` distances over the horizon, see
             :data:`~torchcontact.environments.presets.GAPS`.
-        background_compile: with ``compile``, compile each new graph in a background thread
+        background_compile: with ``compile``, compile each new graph in a child process
             and plan eagerly until it is ready, instead of waiting for it; a graph this
             machine has compiled before is loaded at once (see
             :mod:`~torchcontact.mpc.background`). Needs a planner with an ``eager()`` method
@@ -121,6 +121,7 @@ class ContactImplicitMPC:
         background = compile and background_compile and hasattr(self.planner, "eager")
         self._background = BackgroundCompile() if background else None
         self._eager_planner = self.planner.eager() if background else None
+        self._graph_keys: dict[tuple[int, int], str] = {}  # by (slots, nv): hashing is slow
 
     @classmethod
     def from_env(
@@ -241,7 +242,7 @@ class ContactImplicitMPC:
         return self.cost(pose[..., :3], pose[..., 3:], tips, controls, target_p, target_quat)
 
     def value_and_grad(
-        self, controls, q0, frozen, target_p, target_quat
+        self, controls, q0, frozen, target_p, target_quat, compiled: bool = True
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
 
@@ -249,14 +250,8 @@ class ContactImplicitMPC:
         (the relaxed QP solves there; the closed form needs nothing).
         """
         frozen = frozen.linearized(*self.system(controls))
-        return self._differentiate(controls, q0, frozen, target_p, target_quat)
-
-    def _eager_value_and_grad(
-        self, controls, q0, frozen, target_p, target_quat
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`value_and_grad`, never compiled."""
-        frozen = frozen.linearized(*self.system(controls))
-        return self.differentiate(controls, q0, frozen, target_p, target_quat)
+        differentiate = self._differentiate if compiled else self.differentiate
+        return differentiate(controls, q0, frozen, target_p, target_quat)
 
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
@@ -272,14 +267,12 @@ class ContactImplicitMPC:
         grad, cost = torch.func.grad(total, has_aux=True)(controls)
         return cost, grad
 
-    def _flat_value_and_grad(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
+    def _flat_value_and_grad(
+        self, x: torch.Tensor, *args, compiled: bool = True
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of flat controls ``x (N, T·n_u)``; grad ``(N, T·n_u)``."""
-        f, grad = self.value_and_grad(x.unflatten(-1, (self.horizon, -1)), *args)
-        return f, grad.flatten(-2)
-
-    def _flat_eager_value_and_grad(self, x: torch.Tensor, *args):
-        """:meth:`_flat_value_and_grad`, never compiled."""
-        f, grad = self._eager_value_and_grad(x.unflatten(-1, (self.horizon, -1)), *args)
+        controls = x.unflatten(-1, (self.horizon, -1))
+        f, grad = self.value_and_grad(controls, *args, compiled=compiled)
         return f, grad.flatten(-2)
 
     def _flat_differentiate(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
@@ -324,7 +317,7 @@ class ContactImplicitMPC:
             objective = Objective(self._flat_value_and_grad, traceable)
             planner = self.planner
         else:
-            objective = Objective(self._flat_eager_value_and_grad)
+            objective = Objective(functools.partial(self._flat_value_and_grad, compiled=False))
             planner = self.planner if self._eager_planner is None else self._eager_planner
         with validate_args(False):
             return planner.plan(
@@ -332,9 +325,12 @@ class ContactImplicitMPC:
             )
 
     def _graph_key(self, contacts: Contacts) -> str:
-        """What the compiled graph of a solve at ``contacts`` is specialised to."""
-        return graph_key(
-            self.model, self.cost, self.fingertips, self.layout, self.planner, self.system,
-            self.horizon, self.h, self.dtype, self.gaps, contacts.slots, contacts.nv,
-            self.lower, self.upper,
-        )  # fmt: skip
+        """What the compiled graph of a solve at ``contacts`` is specialised to (all but the
+        contacts' shape fixed with the MPC, so computed once per shape)."""
+        shape = (contacts.slots, contacts.nv)
+        if shape not in self._graph_keys:
+            self._graph_keys[shape] = graph_key(
+                self.model, self.cost, self.fingertips, self.layout, self.planner, self.system,
+                self.horizon, self.h, self.dtype, self.gaps, *shape, self.lower, self.upper,
+            )  # fmt: skip
+        return self._graph_keys[shape]
