@@ -275,6 +275,11 @@ class ContactImplicitMPC:
         f, grad = self.value_and_grad(controls, *args, compiled=compiled)
         return f, grad.flatten(-2)
 
+    def _flat_eager_value_and_grad(self, x: torch.Tensor, *args):
+        """:meth:`_flat_value_and_grad` never compiled; a bound method of the MPC, as planners
+        such as the IPOPT baseline expect of an objective."""
+        return self._flat_value_and_grad(x, *args, compiled=False)
+
     def _flat_differentiate(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`differentiate` of flat controls ``x (N, T·n_u)``, for a traced planner."""
         f, grad = self.differentiate(x.unflatten(-1, (self.horizon, -1)), *args)
@@ -317,7 +322,7 @@ class ContactImplicitMPC:
             objective = Objective(self._flat_value_and_grad, traceable)
             planner = self.planner
         else:
-            objective = Objective(functools.partial(self._flat_value_and_grad, compiled=False))
+            objective = Objective(self._flat_eager_value_and_grad)
             planner = self.planner if self._eager_planner is None else self._eager_planner
         with validate_args(False):
             return planner.plan(
