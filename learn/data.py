@@ -419,8 +419,11 @@ class Transitions:
         u: ``(N, nu)`` applied control, float64.
         q_next: ``(N, nq)`` MuJoCo state one step later, float64.
         contacts: :class:`Contacts` at ``q`` with batch shape ``(N,)`` (float32 geometry).
-        trajectory: ``(N,)`` trajectory id; step: ``(N,)`` step index within it.
-        meta: the dataset manifest (without the trajectory list).
+        trajectory: ``(N,)`` trajectory id (unique across objects); step: ``(N,)`` step
+            index within it.
+        meta: the dataset manifest (without the trajectory list), with ``objects`` (the
+            objects' names) and ``systems`` (each object's affine system, as ``system``).
+        object: ``(N,)`` index into ``meta["objects"]`` (None: all zeros, one object).
     """
 
     q: torch.Tensor
@@ -430,6 +433,13 @@ class Transitions:
     trajectory: torch.Tensor
     step: torch.Tensor
     meta: dict
+    object: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.object is None:
+            self.object = torch.zeros(len(self.q), dtype=torch.long)
+        self.meta.setdefault("objects", [self.meta.get("object")])
+        self.meta.setdefault("systems", [self.meta["system"]])
 
     def __len__(self) -> int:
         return self.q.shape[0]
@@ -444,7 +454,19 @@ class Transitions:
             self.trajectory[index],
             self.step[index],
             self.meta,
+            self.object[index],
         )
+
+    def object_ids(self) -> list[int]:
+        """The object indices present, sorted."""
+        return sorted(set(self.object.tolist()))
+
+    def split_objects(
+        self, fractions: tuple[float, float, float] = (0.6, 0.2, 0.2), seed: int = 0
+    ) -> tuple[Transitions, Transitions, Transitions]:
+        """Train, validation and test sets by whole objects (shuffled with ``seed``): no object
+        is in two sets. Each set gets at least one object; three or more are needed."""
+        return self._split(self.object, self.object_ids(), "objects", fractions, seed)
 
     def trajectory_ids(self) -> list[int]:
         """The trajectory ids present, sorted."""
@@ -457,20 +479,25 @@ class Transitions:
 
         Each set gets at least one trajectory when there are three or more.
         """
+        return self._split(self.trajectory, self.trajectory_ids(), "trajectories", fractions, seed)
+
+    def _split(self, key: torch.Tensor, ids: list[int], what: str, fractions, seed: int):
+        """Rows grouped by ``key``'s values ``ids``, the groups shuffled and dealt in
+        ``fractions``."""
         if len(fractions) != 3 or any(f < 0 for f in fractions) or not sum(fractions) > 0:
             raise ValueError(f"fractions must be three non-negative numbers, got {fractions!r}")
-        ids = np.array(self.trajectory_ids())
+        ids = np.array(ids)
         if len(ids) < 3:
-            raise ValueError(f"splitting needs at least 3 trajectories, got {len(ids)}")
+            raise ValueError(f"splitting needs at least 3 {what}, got {len(ids)}")
         ids = ids[np.random.default_rng(seed).permutation(len(ids))]
         total = sum(fractions)
         n_val = max(1, round(len(ids) * fractions[1] / total))
         n_test = max(1, round(len(ids) * fractions[2] / total))
         n_train = len(ids) - n_val - n_test
         if n_train < 1:
-            raise ValueError(f"fractions {fractions} leave no training trajectory of {len(ids)}")
+            raise ValueError(f"fractions {fractions} leave no training {what[:-1]} of {len(ids)}")
         groups = (ids[:n_train], ids[n_train : n_train + n_val], ids[n_train + n_val :])
-        return tuple(self.select(torch.isin(self.trajectory, torch.as_tensor(g))) for g in groups)
+        return tuple(self.select(torch.isin(key, torch.as_tensor(g))) for g in groups)
 
     def windows(self, horizon: int, stride: int = 1) -> torch.Tensor:
         """``(W, horizon)`` row indices of consecutive steps of one trajectory each, starting
@@ -527,4 +554,53 @@ def load(directory: str | Path, trajectories: int | None = None) -> Transitions:
         trajectory=stacked["trajectory"],
         step=stacked["step"],
         meta=meta,
+    )
+
+
+SHARED = ("scene", "h", "gamma", "facets", "paper_stiffness", "joints", "pose_weights")
+SHARED += ("nq", "nv", "nu", "slots", "control_dt")
+"""Manifest keys every dataset of a multi-object set must agree on."""
+
+
+def load_objects(directories, trajectories: int | None = None) -> Transitions:
+    """The datasets in ``directories`` (one object each, one scene) as one
+    :class:`Transitions`: ``object`` indexes ``meta["objects"]`` in the order given, each
+    object keeps its own system (``meta["systems"]``) and trajectory ids are renumbered to be
+    unique. ``trajectories``: read trajectories ``0 … trajectories−1`` of each.
+
+    Raises :class:`DataFormatError` naming a dataset whose scene, model or sizes differ from
+    the first's, or an object given twice."""
+    directories = [Path(d) for d in directories]
+    if not directories:
+        raise ValueError("directories must name at least one dataset")
+    parts = [load(directory, trajectories) for directory in directories]
+    first = parts[0].meta
+    for directory, part in zip(directories, parts, strict=True):
+        for key in (*SHARED, "B"):
+            mine = part.meta["system"]["B"] if key == "B" else part.meta.get(key)
+            theirs = first["system"]["B"] if key == "B" else first.get(key)
+            if mine != theirs:
+                raise DataFormatError(
+                    f"{directory / MANIFEST}: {key} differs from {directories[0]}'s "
+                    f"({mine!r} against {theirs!r}); a multi-object set needs one scene"
+                )
+    objects = [part.meta["object"] for part in parts]
+    if len(set(objects)) != len(objects):
+        raise DataFormatError(f"each object must come once, got {objects}")
+    span = 1 + max(int(part.trajectory.max()) for part in parts)
+    meta = {
+        **first,
+        "object": None,
+        "objects": objects,
+        "systems": [part.meta["system"] for part in parts],
+    }
+    return Transitions(
+        q=torch.cat([part.q for part in parts]),
+        u=torch.cat([part.u for part in parts]),
+        q_next=torch.cat([part.q_next for part in parts]),
+        contacts=Contacts.cat([part.contacts for part in parts]),
+        trajectory=torch.cat([i * span + part.trajectory for i, part in enumerate(parts)]),
+        step=torch.cat([part.step for part in parts]),
+        meta=meta,
+        object=torch.cat([torch.full((len(part),), i) for i, part in enumerate(parts)]),
     )

@@ -12,6 +12,7 @@ with the MPC's final-cost weights.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -24,7 +25,6 @@ from torchcontact.learn.fit import (
     object_indices,
     pose_errors,
     predict_poses,
-    system_terms,
 )
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_angle
@@ -49,24 +49,49 @@ def pose_metrics(pose: torch.Tensor, target: torch.Tensor, weights: tuple[float,
 
 
 def one_step_error(model: ComplementarityFree, data: StepData, weights) -> dict:
-    """:func:`pose_metrics` of the model's one-step predictions on ``data``."""
-    model = model.to(data.gap.dtype)
+    """:func:`pose_metrics` of the model's one-step predictions on ``data`` (its windows'
+    first steps)."""
+    model = model.to(data.q.dtype)
     with torch.no_grad(), validate_args(False):
-        return pose_metrics(predict_poses(model, data), data.target, weights)
+        first = data.first_steps()
+        return pose_metrics(predict_poses(model, first)[:, 0], first.target[:, 0], weights)
+
+
+Detectors = ContactDetector | Mapping[str, ContactDetector]
+"""One detector (one object), or each object's by name (``meta["objects"]``)."""
+
+
+def _object_parts(transitions: Transitions, detectors: Detectors):
+    """``(part, detector, system)`` per object of ``transitions``: its rows, its detector and
+    its affine system ``(Q, b0, B)`` (float64)."""
+    meta = transitions.meta
+    B = torch.tensor(meta["system"]["B"], dtype=torch.float64)
+    for index in transitions.object_ids():
+        name = meta["objects"][index]
+        if isinstance(detectors, Mapping):
+            if name not in detectors:
+                raise ValueError(f"detectors must hold object {name!r}, got {sorted(detectors)}")
+            detector = detectors[name]
+        else:
+            detector = detectors
+        system = meta["systems"][index]
+        Q, b0 = (torch.tensor(system[key], dtype=torch.float64) for key in ("Q", "b0"))
+        yield transitions.select(transitions.object == index), detector, (Q, b0, B)
 
 
 def rollout_error(
     model: ComplementarityFree,
     transitions: Transitions,
-    detector: ContactDetector,
+    detectors: Detectors,
     horizon: int = 10,
     stride: int = 5,
     robot: str = "model",
 ) -> dict:
     """:func:`pose_metrics` after ``horizon``-step rollouts from every ``stride``-th step.
 
-    All windows roll out together (float64): per step, contacts at the predicted states,
-    ``(Q, b)`` of the recorded controls, ``v⁺`` from ``model`` and ``q ⊕ h v⁺``. With
+    Per object, all windows roll out together (float64): per step, contacts detected at the
+    predicted states by the object's detector, ``(Q, b)`` of the recorded controls (through
+    the model's calibration, if any), ``v⁺`` from ``model`` and ``q ⊕ h v⁺``. With
     ``robot="recorded"`` the robot's coordinates are reset to MuJoCo's after every step, so
     only the objects are predicted: the error of the contact model alone, without the
     quasi-dynamic robot's tracking error. Adds ``"windows"``, their number.
@@ -74,26 +99,35 @@ def rollout_error(
     if robot not in ("model", "recorded"):
         raise ValueError(f"robot must be 'model' or 'recorded', got {robot!r}")
     meta = transitions.meta
-    windows = transitions.windows(horizon, stride)
-    if len(windows) == 0:
-        raise ValueError(f"transitions hold no {horizon}-step window (trajectories too short)")
     layout = JointLayout(meta["joints"])
-    q_index, _ = object_indices(meta["joints"])
+    q_index, v_index = object_indices(meta["joints"])
     is_object = torch.zeros(layout.nq, dtype=torch.bool)
     is_object[q_index.flatten()] = True
     model = model.to(torch.float64)
-    q = transitions.q[windows[:, 0]]
-    with torch.no_grad(), validate_args(False):
-        for t in range(horizon):
-            contacts = detector(q).to(torch.float64)
-            Q, b = system_terms(meta, transitions.u[windows[:, t]])
-            v = model(Q, b, contacts, meta["h"], q=q)
-            q = integrate(q, v, meta["h"], layout)
-            if robot == "recorded":
-                q = torch.where(is_object, q, transitions.q_next[windows[:, t]])
-    target = transitions.q_next[windows[:, -1], :][:, q_index]
-    metrics = pose_metrics(q[:, q_index], target, meta["pose_weights"])
-    return {**metrics, "windows": len(windows)}
+    predicted, recorded = [], []
+    for part, detector, (Q0, b0, B) in _object_parts(transitions, detectors):
+        windows = part.windows(horizon, stride)
+        if len(windows) == 0:
+            continue
+        q = part.q[windows[:, 0]]
+        with torch.no_grad(), validate_args(False):
+            for t in range(horizon):
+                contacts = detector(q).to(torch.float64)
+                u = part.u[windows[:, t]]
+                if model.calibration is None:
+                    Q, b = Q0, b0 + u @ B.T
+                else:
+                    Q, b = model.calibration.terms(Q0, b0, B, u, v_index.flatten())
+                v = model(Q, b, contacts, meta["h"], q=q)
+                q = integrate(q, v, meta["h"], layout)
+                if robot == "recorded":
+                    q = torch.where(is_object, q, part.q_next[windows[:, t]])
+        predicted.append(q[:, q_index])
+        recorded.append(part.q_next[windows[:, -1], :][:, q_index])
+    if not predicted:
+        raise ValueError(f"transitions hold no {horizon}-step window (trajectories too short)")
+    metrics = pose_metrics(torch.cat(predicted), torch.cat(recorded), meta["pose_weights"])
+    return {**metrics, "windows": sum(len(p) for p in predicted)}
 
 
 def still_error(transitions: Transitions, horizon: int = 10, stride: int = 5) -> dict:
@@ -110,7 +144,7 @@ def still_error(transitions: Transitions, horizon: int = 10, stride: int = 5) ->
 def sweep_constant(
     values,
     transitions: Transitions,
-    detector: ContactDetector,
+    detector: Detectors,
     horizon: int = 10,
     stride: int = 5,
 ) -> list[dict]:

@@ -1,20 +1,21 @@
-"""Fit the contact stiffness K(q) and damping D(q) of the complementarity-free model to data.
+"""Fit the complementarity-free model, K(q), D(q) and optionally the system, to data.
 
 The model is the scene's :class:`~torchcontact.model.ComplementarityFree` with learnable
-sub-modules; the loss is the one-step object pose error against MuJoCo, weighted as in the
-MPC's final cost, ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` (the paper's w_p = 500 or 100,
-w_q = 5). Only λ depends on K and D, so everything else of the step is computed once
-(:class:`StepData`): per transition the row gaps ``J̃Q⁻¹b``, the row distances φ̃, the
-contact-free object velocity ``(Q⁻¹b)ₒ/h`` and the object rows of ``Q⁻¹J̃ᵀ/h``; a training
-step is then ``λ = softplus_γ(−K(J̃Q⁻¹b + φ̃) − D·J̃Q⁻¹b/h)``, ``vₒ = (Q⁻¹b)ₒ/h + (Q⁻¹J̃ᵀ)ₒλ/h``
-and the object's pose update, on float32 mini-batches (Adam, early stopping on a validation
-split, the best state kept). :mod:`torchcontact.checkpoint` stores the fitted model with the
+sub-modules: K and D, and a :class:`~torchcontact.calibration.SystemCalibration` (the robot's
+command gain and stiffness, the object metric ε, μ) when one is fitted. The loss is the object
+pose error against MuJoCo, weighted as in the MPC's final cost, ``w_p‖p − p*‖² + w_q(1 −
+⟨q, q*⟩²)`` (the paper's w_p = 500 or 100, w_q = 5): after one step, or the mean over H steps
+rolled out with the contacts frozen at each window's first state, as the MPC plans
+(:class:`StepData` holds the windows). Adam on mini-batches, early stopping on a validation
+set, the best state kept. :func:`fit` takes plain tensors; :func:`fit_steps` takes prepared
+windows. :mod:`torchcontact.checkpoint` stores the fitted model with the
 :class:`~torchcontact.checkpoint.FitConfig` and dataset metadata that rebuild it.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 from dataclasses import dataclass, fields
 
@@ -24,7 +25,6 @@ from tqdm.auto import tqdm
 from torchcontact.checkpoint import FitConfig
 from torchcontact.contacts import Contacts
 from torchcontact.environments.costs import position_cost
-from torchcontact.functional import softplus
 from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
 from torchcontact.learn.data import Transitions
 from torchcontact.model import ComplementarityFree
@@ -56,41 +56,80 @@ def object_indices(joints: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.tensor(q_index), torch.tensor(v_index)
 
 
+def affine_system(system: QuasiDynamic) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``Q (nv,)``, ``b0 (nv,)`` and ``B (nv, nu)`` of ``system``: ``b(u) = b0 + B·u``."""
+    u = torch.eye(system.n_robot, dtype=torch.float64)
+    Q, b0 = system(torch.zeros_like(u[0]))
+    _, b_unit = system(u)
+    return Q, b0, (b_unit - b0).T
+
+
 @dataclass
 class StepData:
-    """The K-independent pieces of the CF step for N transitions (row ``i`` = one step).
+    """N windows of H consecutive transitions (H = 1: single steps), the inputs of the loss.
+
+    Each window starts at a recorded state with its recorded contacts; the model rolls out
+    the recorded controls for H steps with those contacts frozen (as the MPC plans), and its
+    object poses are compared with MuJoCo's after every step.
 
     Attributes:
-        q: ``(N, nq)`` state, for state-dependent K.
-        contacts: :class:`Contacts` ``(N, ...)``, for contact-dependent K.
-        gap: ``(N, m)`` J̃Q⁻¹b, each row's distance change without contact [m].
-        phi: ``(N, m)`` row distances φ̃ [m].
-        free: ``(N, n_obj·6)`` object velocity without contact ``(Q⁻¹b)ₒ/h``.
-        response: ``(N, n_obj·6, m)`` ``(Q⁻¹J̃ᵀ)ₒ/h``: object velocity per unit λ.
-        pose: ``(N, n_obj, 7)`` object poses at q; target: ``(N, n_obj, 7)`` recorded next.
+        q: ``(N, nq)`` the windows' first states, for state-dependent K.
+        contacts: :class:`Contacts` ``(N, ...)`` detected at ``q``.
+        u: ``(N, H, nu)`` the recorded controls.
+        metric: ``(N, nv)`` Q and bias: ``(N, nv)`` b0 of each window's object's system,
+            with B: ``(nv, nu)``, ``b(u) = b0 + B·u``.
+        pose: ``(N, n_obj, 7)`` object poses at q; target: ``(N, H, n_obj, 7)`` recorded after
+            each step.
+        robot: ``(N, n_r)`` the robot's coordinates at q [m or rad]; robot_target:
+            ``(N, H, n_r)`` recorded after each step.
+        object_rows: ``(n_obj·6,)`` the objects' indices in v; robot_rows: ``(n_r,)`` the
+            robot's (one coordinate per velocity: hinge and slide joints).
         h: the model's time step [s].
     """
 
     q: torch.Tensor
     contacts: Contacts
-    gap: torch.Tensor
-    phi: torch.Tensor
-    free: torch.Tensor
-    response: torch.Tensor
+    u: torch.Tensor
+    metric: torch.Tensor
+    bias: torch.Tensor
+    B: torch.Tensor
     pose: torch.Tensor
     target: torch.Tensor
+    robot: torch.Tensor
+    robot_target: torch.Tensor
+    object_rows: torch.Tensor
+    robot_rows: torch.Tensor
     h: float
 
     @classmethod
     def from_transitions(
-        cls, transitions: Transitions, facets: int, dtype: torch.dtype = torch.float32
+        cls,
+        transitions: Transitions,
+        horizon: int = 1,
+        dtype: torch.dtype = torch.float32,
+        stride: int = 1,
     ) -> StepData:
-        """Precompute from :class:`~torchcontact.learn.data.Transitions` (in float64, then
-        stored as ``dtype``)."""
+        """Windows of ``horizon`` steps starting every ``stride`` steps of each trajectory;
+        each transition's system is its object's (``meta["systems"]``)."""
         meta = transitions.meta
-        Q, b = system_terms(meta, transitions.u.to(torch.float64))
-        rows = (transitions.q, transitions.q_next, transitions.contacts)
-        return cls._precompute(*rows, Q, b, float(meta["h"]), meta["joints"], facets, dtype)
+        windows = transitions.windows(horizon, stride)
+        first = windows[:, 0]
+        systems = meta.get("systems", [meta["system"]])
+        metric = torch.tensor([s["Q"] for s in systems], dtype=torch.float64)
+        bias = torch.tensor([s["b0"] for s in systems], dtype=torch.float64)
+        objects = transitions.object[first]
+        return cls._build(
+            transitions.q[first],
+            transitions.contacts[first],
+            transitions.u[windows],
+            transitions.q_next[windows],
+            metric[objects],
+            bias[objects],
+            torch.tensor(meta["system"]["B"], dtype=torch.float64),
+            float(meta["h"]),
+            meta["joints"],
+            dtype,
+        )
 
     @classmethod
     def from_tensors(
@@ -102,10 +141,9 @@ class StepData:
         system: QuasiDynamic,
         h: float,
         joints: list[str],
-        facets: int = 4,
         dtype: torch.dtype = torch.float32,
     ) -> StepData:
-        """Precompute from plain tensors: no dataset folder or manifest.
+        """Single steps from plain tensors: no dataset folder or manifest.
 
         Args:
             q: ``(N, nq)`` states; u: ``(N, n_robot)`` controls; q_next: ``(N, nq)`` the
@@ -114,7 +152,6 @@ class StepData:
             system: the quasi-dynamic system ``u ↦ (Q, b)`` of the model.
             joints: joint types of q (``"free"`` for the object, see
                 :class:`~torchcontact.integrate.JointLayout`).
-            facets: facets of the model's friction cones.
         """
         n = q.shape[0]
         for name, value in (("u", u), ("q_next", q_next)):
@@ -122,87 +159,118 @@ class StepData:
                 raise ValueError(f"{name} must have {n} rows like q, got {tuple(value.shape)}")
         if contacts.phi.shape[0] != n:
             raise ValueError(f"contacts must have {n} rows like q, got {contacts.phi.shape[0]}")
-        Q, b = system(u.to(torch.float64))
-        rows = (q, q_next, contacts)
-        return cls._precompute(*rows, Q.to(torch.float64), b, h, joints, facets, dtype)
+        Q, b0, B = affine_system(system.to(torch.float64))
+        rows = (q, contacts, u[:, None], q_next[:, None], Q.expand(n, -1), b0.expand(n, -1), B)
+        return cls._build(*rows, float(h), joints, dtype)
 
     @classmethod
-    def _precompute(cls, q, q_next, contacts, Q, b, h, joints, facets: int, dtype) -> StepData:
-        """The pieces of :class:`StepData` from the rows ``q``, ``q_next`` and ``contacts``,
-        ``Q (nv,)`` and ``b (N, nv)`` in float64."""
+    def _build(cls, q, contacts, u, q_next, metric, bias, B, h, joints, dtype) -> StepData:
         q_index, v_index = object_indices(joints)
-        with validate_args(False):
-            jac, phi, _ = contacts.to(torch.float64).dual_rows(facets)
-        free = b / Q  # Q⁻¹b (N, nv)
-        gap = (jac @ free.unsqueeze(-1)).squeeze(-1)
-        rows = v_index.flatten()
-        response = jac[..., rows].mT / Q[rows, None] / h
+        layout = JointLayout(joints)
+        if any(j != "free" and JOINT_SIZES[j][0] != JOINT_SIZES[j][1] for j in layout.joints):
+            raise ValueError(f"joints: the robot's must be hinge or slide joints, got {joints}")
+        robot_q = _complement(q_index.flatten(), layout.nq)
         return cls(
             q=q.to(dtype),
             contacts=contacts.to(dtype),
-            gap=gap.to(dtype),
-            phi=phi.to(dtype),
-            free=(free[:, rows] / h).to(dtype),
-            response=response.to(dtype),
+            u=u.to(dtype),
+            metric=metric.to(dtype),
+            bias=bias.to(dtype),
+            B=B.to(dtype),
             pose=q[:, q_index].to(dtype),
-            target=q_next[:, q_index].to(dtype),
-            h=float(h),
+            target=q_next[:, :, q_index].to(dtype),
+            robot=q[:, robot_q].to(dtype),
+            robot_target=q_next[:, :, robot_q].to(dtype),
+            object_rows=v_index.flatten(),
+            robot_rows=_complement(v_index.flatten(), layout.nv),
+            h=h,
         )
 
     def __len__(self) -> int:
         return self.q.shape[0]
 
+    @property
+    def horizon(self) -> int:
+        return self.u.shape[1]
+
     def select(self, index: torch.Tensor) -> StepData:
-        """Rows ``index`` (long indices or a bool mask)."""
+        """Windows ``index`` (long indices or a bool mask)."""
+        shared = ("contacts", "h", "B", "object_rows", "robot_rows")
         tensors = {
-            f.name: getattr(self, f.name)[index]
+            f.name: getattr(self, f.name)[index] for f in fields(self) if f.name not in shared
+        }
+        return StepData(
+            contacts=self.contacts[index],
+            h=self.h,
+            B=self.B,
+            object_rows=self.object_rows,
+            robot_rows=self.robot_rows,
+            **tensors,
+        )
+
+    def first_steps(self) -> StepData:
+        """The windows cut to their first step."""
+        return dataclasses.replace(
+            self, u=self.u[:, :1], target=self.target[:, :1], robot_target=self.robot_target[:, :1]
+        )
+
+    def to(self, device: torch.device | str) -> StepData:
+        """The windows on ``device``."""
+        moved = {
+            f.name: getattr(self, f.name).to(device)
             for f in fields(self)
             if f.name not in ("contacts", "h")
         }
-        return StepData(contacts=self.contacts[index], h=self.h, **tensors)
+        return StepData(contacts=self.contacts.to(device), h=self.h, **moved)
 
 
-def fit_tensors(
-    model: ComplementarityFree,
-    q: torch.Tensor,
-    u: torch.Tensor,
-    q_next: torch.Tensor,
-    contacts: Contacts,
-    system: QuasiDynamic,
-    h: float,
-    joints: list[str],
-    config: FitConfig | None = None,
-    weights: tuple[float, float] = (500.0, 5.0),
-    val_fraction: float = 0.2,
-    progress: bool = True,
-) -> FitResult:
-    """Fit ``model`` to transitions given as plain tensors (see :meth:`StepData.from_tensors`
-    for the arguments), holding out a random ``val_fraction`` of the rows (seeded by
-    ``config.seed``) for early stopping; ``weights``: the pose loss's (w_p, w_q)."""
-    config = FitConfig() if config is None else config
-    if not 0 < val_fraction < 1:
-        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction!r}")
-    data = StepData.from_tensors(q, u, q_next, contacts, system, h, joints, model.facets)
-    order = torch.randperm(len(data), generator=torch.Generator().manual_seed(config.seed))
-    held = max(1, int(round(val_fraction * len(data))))
-    if held >= len(data):
-        raise ValueError(f"q must have at least 2 rows to split, got {len(data)}")
-    train, val = data.select(order[held:]), data.select(order[:held])
-    return fit(model, train, val, weights, config, progress)
+def step_terms(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Q (N, 1, nv)`` and ``b (N, H, nv)`` of the windows, through the model's calibration
+    when it has one (differentiable in its factors)."""
+    metric, bias = data.metric[:, None], data.bias[:, None]
+    if model.calibration is None:
+        return metric, bias + data.u @ data.B.mT
+    return model.calibration.terms(metric, bias, data.B, data.u, data.object_rows)
+
+
+def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
+    """Object poses ``(N, H, n_obj, 7)`` and robot coordinates ``(N, H, n_r)`` after each
+    step of ``data``'s windows under ``model``, contacts frozen at each window's first state."""
+    Q, b = step_terms(model, data)
+    frozen = model.freeze(data.contacts, data.h, data.q)
+    n_obj = data.pose.shape[-2]
+    layout = JointLayout(["free"] * n_obj)
+    pose, robot, poses, robots = data.pose.flatten(-2), data.robot, [], []
+    for t in range(data.horizon):
+        v = frozen.velocity(Q[:, 0], b[:, t])
+        pose = integrate(pose, v[:, data.object_rows], data.h, layout)
+        robot = robot + data.h * v[:, data.robot_rows]
+        poses.append(pose.unflatten(-1, (n_obj, 7)))
+        robots.append(robot)
+    return torch.stack(poses, dim=1), torch.stack(robots, dim=1)
 
 
 def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:
-    """Object poses ``(N, n_obj, 7)`` one step after ``data``'s states under ``model``."""
-    K, D = model.coefficients(data.contacts, data.q)
-    argument = -K * (data.gap + data.phi)
-    if D is not None:
-        argument = argument - D * data.gap / data.h
-    lam = softplus(argument, model.gamma)
-    velocity = data.free + (data.response @ lam.unsqueeze(-1)).squeeze(-1)
-    n_obj = data.pose.shape[-2]
-    layout = JointLayout(["free"] * n_obj)
-    poses = integrate(data.pose.flatten(-2), velocity, data.h, layout)
-    return poses.unflatten(-1, (n_obj, 7))
+    """Object poses ``(N, H, n_obj, 7)`` of :func:`predict`."""
+    return predict(model, data)[0]
+
+
+def window_loss(model: ComplementarityFree, data: StepData, weights, robot_weight: float = 0.0):
+    """:func:`pose_loss` of the predicted objects, plus ``robot_weight`` times the mean squared
+    error of the robot's coordinates [m² or rad²] (the only term that sees the robot's
+    stiffness: unopposed by contact, its command gain alone moves it)."""
+    poses, robot = predict(model, data)
+    loss = pose_loss(poses, data.target, weights)
+    if robot_weight:
+        loss = loss + robot_weight * (robot - data.robot_target).square().sum(-1).mean()
+    return loss
+
+
+def _complement(index: torch.Tensor, size: int) -> torch.Tensor:
+    """The indices of ``range(size)`` not in ``index``."""
+    keep = torch.ones(size, dtype=torch.bool)
+    keep[index] = False
+    return torch.nonzero(keep).flatten()
 
 
 def pose_errors(pose: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -239,16 +307,16 @@ class FitResult:
     seconds: float
 
 
-def _evaluate_loss(model, data: StepData, weights, batch: int = 8192) -> float:
+def _evaluate_loss(model, data: StepData, weights, robot_weight, batch: int = 8192) -> float:
     total = 0.0
     with torch.no_grad():
         for start in range(0, len(data), batch):
             part = data.select(torch.arange(start, min(start + batch, len(data))))
-            total += float(pose_loss(predict_poses(model, part), part.target, weights)) * len(part)
+            total += float(window_loss(model, part, weights, robot_weight)) * len(part)
     return total / max(len(data), 1)
 
 
-def fit(
+def fit_steps(
     model: ComplementarityFree,
     train: StepData,
     val: StepData,
@@ -256,7 +324,8 @@ def fit(
     config: FitConfig,
     progress: bool = True,
 ) -> FitResult:
-    """Train ``model``'s parameters on ``train`` by Adam on :func:`pose_loss` mini-batches.
+    """Train ``model``'s parameters on ``train`` by Adam on :func:`window_loss` mini-batches,
+    in ``train``'s dtype and on its device.
 
     Stops after ``config.epochs`` or ``config.patience`` epochs without a better loss on
     ``val``; the model is left holding its best validation state.
@@ -266,13 +335,12 @@ def fit(
     parameters = [p for p in model.parameters() if p.requires_grad]
     if not parameters:
         raise ValueError("model has no learnable parameters")
-    dtype = train.gap.dtype
-    model = model.to(dtype)
+    model = model.to(device=train.q.device, dtype=train.q.dtype)
     optimizer = torch.optim.Adam(parameters, lr=config.lr)
     generator = torch.Generator().manual_seed(config.seed)
     start = time.perf_counter()
     with validate_args(False):
-        best = _evaluate_loss(model, val, weights)
+        best = _evaluate_loss(model, val, weights, config.robot_weight)
         best_state, best_epoch, history = copy.deepcopy(model.state_dict()), 0, []
         bar = tqdm(range(1, config.epochs + 1), desc="fit", disable=not progress, unit="epoch")
         for epoch in bar:
@@ -280,12 +348,12 @@ def fit(
             running = 0.0
             for first in range(0, len(train), config.batch_size):
                 batch = train.select(order[first : first + config.batch_size])
-                loss = pose_loss(predict_poses(model, batch), batch.target, weights)
+                loss = window_loss(model, batch, weights, config.robot_weight)
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
                 running += loss.item() * len(batch)
-            val_loss = _evaluate_loss(model, val, weights)
+            val_loss = _evaluate_loss(model, val, weights, config.robot_weight)
             history.append(
                 {"epoch": epoch, "train_loss": running / len(train), "val_loss": val_loss}
             )
@@ -297,3 +365,38 @@ def fit(
                 break
     model.load_state_dict(best_state)
     return FitResult(model, history, best_epoch, best, time.perf_counter() - start)
+
+
+def fit(
+    model: ComplementarityFree,
+    q: torch.Tensor,
+    u: torch.Tensor,
+    q_next: torch.Tensor,
+    contacts: Contacts,
+    system: QuasiDynamic,
+    h: float,
+    joints: list[str],
+    config: FitConfig | None = None,
+    weights: tuple[float, float] = (500.0, 5.0),
+    val_fraction: float = 0.2,
+    progress: bool = True,
+) -> FitResult:
+    """Fit ``model`` to transitions given as plain tensors: no dataset folder or manifest.
+
+    See :meth:`StepData.from_tensors` for the arguments; a random ``val_fraction`` of the rows
+    (seeded by ``config.seed``) is held out for early stopping; ``weights``: the pose loss's
+    (w_p, w_q). The loss is one-step: a ``config.loss_horizon`` above 1 needs consecutive
+    rows, :meth:`StepData.from_transitions` and :func:`fit_steps`.
+    """
+    config = FitConfig() if config is None else config
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction!r}")
+    if config.loss_horizon != 1:
+        raise ValueError(f"config.loss_horizon must be 1 for plain rows, got {config.loss_horizon}")
+    data = StepData.from_tensors(q, u, q_next, contacts, system, h, joints)
+    order = torch.randperm(len(data), generator=torch.Generator().manual_seed(config.seed))
+    held = max(1, int(round(val_fraction * len(data))))
+    if held >= len(data):
+        raise ValueError(f"q must have at least 2 rows to split, got {len(data)}")
+    train, val = data.select(order[held:]), data.select(order[:held])
+    return fit_steps(model, train, val, weights, config, progress)

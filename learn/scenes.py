@@ -195,7 +195,9 @@ def make_scene(name: str, obj: str = "cube", task: str | None = None) -> Scene |
     """The plant of environment ``name`` with object ``obj`` and the paper's model of it, or
     the box-pushing scene (object ``"cube"``, task ``"push"``, no MPC).
 
-    ``task`` defaults to the environment's first task defined for ``obj``.
+    ``obj`` may also be a generated object ``"random-SEED"`` or a mesh file where the
+    environment takes them (the hands). ``task`` defaults to the environment's first task
+    defined for ``obj``.
     """
     if name == BOX_PUSHING:
         if obj != "cube" or task not in (None, "push"):
@@ -206,9 +208,16 @@ def make_scene(name: str, obj: str = "cube", task: str | None = None) -> Scene |
     if name not in ENVIRONMENTS:
         raise ValueError(f"name must be one of {SCENES}, got {name!r}")
     env = environment(name)
-    tasks = [t for t, o in env.pairs if o == obj]
-    if not tasks:
-        raise ValueError(f"obj must be an object of the {name} suite {env.objects}, got {obj!r}")
+    try:  # a built-in object, or where the environment takes them a generated one or a mesh
+        pairs = env.select("all", obj) if obj != "all" else []
+    except ValueError:
+        pairs = []
+    tasks = [t for t, _ in pairs]
+    if len({o for _, o in pairs}) != 1:
+        extra = ", a generated object random-SEED or a mesh file" if env.user_meshes else ""
+        raise ValueError(
+            f"obj must be an object of the {name} suite {env.objects}{extra}, got {obj!r}"
+        )
     if task is None:
         task = tasks[0]
     elif task not in tasks:

@@ -140,7 +140,9 @@ class ContactImplicitMPC:
         ``model``: a contact model, a name of :data:`~torchcontact.model.MODELS` built with
         its defaults (the relaxed QP's κ is then the paper's at h = 0.1 s: for another h,
         pass ``RelaxedQP(paper_relaxation(h))``), or None for the paper's model at
-        ``env.default_stiffness``;
+        ``env.default_stiffness``; a model holding a fitted
+        :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
+        calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
         built with the settings' iterations, memory and compilation; ``settings``: solver
         settings or a preset name (default the environment's default preset);
@@ -161,8 +163,12 @@ class ContactImplicitMPC:
             cost = costs.cost(cost)
         bound = env.control_bound(plant)
         dtype = getattr(torch, settings.dtype)
+        system = env.system(plant)
+        calibration = getattr(model, "calibration", None)
+        if calibration is not None:
+            system = calibration.apply(system)
         return cls(
-            env.system(plant),
+            system,
             model,
             env.layout,
             env.fingertips(dtype),

@@ -23,7 +23,8 @@ HEADLINE = (
 def test_tiny_learn_k_run(tmp_path, capsys):
     options = (
         "--scene trifinger --object cube --trajectories 3 --steps 8 --actions random "
-        "--horizon 3 --stride 2 --sweep 0.1 10 3 --epochs 2 --hidden 8 --seed 1 --no-progress"
+        "--horizon 3 --stride 2 --sweep 0.1 10 3 --epochs 2 --hidden 8 --seed 1 --no-progress "
+        "--splits 2"
     )
     argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
     argv += ["--json", str(tmp_path / "headline.json")]
@@ -33,8 +34,10 @@ def test_tiny_learn_k_run(tmp_path, capsys):
     assert headline["transitions"] == 24
     assert all(math.isfinite(headline[key]) for key in HEADLINE)
     record = read_json(tmp_path / "trifinger_cube" / "results.json")
-    assert [row["stiffness"] for row in record["sweep"]] == pytest.approx([0.1, 1.0, 10.0])
-    assert record["best_constant_k"] in [row["stiffness"] for row in record["sweep"]]
+    assert record["split"] == "trajectories" and len(record["splits"]) == 2
+    first = record["splits"][0]
+    assert [row["stiffness"] for row in first["sweep"]] == pytest.approx([0.1, 1.0, 10.0])
+    assert first["best_constant_k"] in [row["stiffness"] for row in first["sweep"]]
     model, config, meta = load_checkpoint(tmp_path / "trifinger_cube" / "model.pt")
     assert config.stiffness == "contact_network" and meta["scene"] == "trifinger"
     out = capsys.readouterr().out
@@ -71,8 +74,8 @@ def test_run_rejects_bad_learned_options(tmp_path, capsys):
 
 def test_bad_options_are_rejected(capsys):
     with pytest.raises(SystemExit):
-        main(["learn-k", "--trajectories", "2"])
-    assert "--trajectories must be >= 3" in capsys.readouterr().err
+        main(["learn-k", "--object", "cube", "--trajectories", "2"])
+    assert "--trajectories must give 3 or more trajectories" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["learn-k", "--steps", "5", "--horizon", "10"])
     assert "--steps must exceed --horizon" in capsys.readouterr().err
@@ -81,7 +84,7 @@ def test_bad_options_are_rejected(capsys):
 def test_tiny_learn_k_run_on_box_pushing(tmp_path):
     options = (
         "--scene box_pushing --trajectories 3 --steps 8 --horizon 3 --stride 2 "
-        "--sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress"
+        "--sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress --splits 1"
     )
     argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
     assert main([*argv, "--json", str(tmp_path / "headline.json")]) == 0
@@ -96,3 +99,59 @@ def test_learn_k_refuses_mpc_actions_for_box_pushing(capsys):
     with pytest.raises(SystemExit):
         main(["learn-k", "--scene", "box_pushing", "--actions", "mpc"])
     assert "--actions must be random for box_pushing" in capsys.readouterr().err
+
+
+def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
+    """Three objects, two splits: each split's test object is in no other set of it, the
+    headline gives the mean and standard deviation over the splits, and the model's system
+    factors are fitted."""
+    options = (
+        "--scene trifinger --object cube,random-3,random-4 --trajectories 2 --steps 8 "
+        "--actions random --horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 "
+        "--splits 2 --loss-horizon 2 --no-progress"
+    )
+    argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
+    assert main([*argv, "--json", str(tmp_path / "headline.json")]) == 0
+    headline = read_json(tmp_path / "headline.json")
+    assert headline["split"] == "objects" and headline["transitions"] == 48
+    assert math.isfinite(headline["improvement_vs_best_constant_sd"])
+    gains = [split["improvement_vs_best_constant"] for split in headline["splits"]]
+    assert headline["improvement_vs_best_constant"] == pytest.approx(sum(gains) / 2)
+    for split in headline["splits"]:
+        sets = [set(split[f"{name}_objects"]) for name in ("train", "val", "test")]
+        assert sum(map(len, sets)) == 3 and len(set.union(*sets)) == 3
+        assert split["calibration"]["command_gain"] != [1.0] * 9
+    model, config, meta = load_checkpoint(
+        tmp_path / "trifinger_cube_random-3_random-4" / "model.pt"
+    )
+    assert config.calibrate == ("command_gain", "robot_stiffness", "object_metric")
+    assert config.loss_horizon == 2 and meta["objects"] == ["cube", "random-3", "random-4"]
+    assert "splits by objects" in capsys.readouterr().out
+
+
+def test_an_object_split_needs_three_objects(capsys):
+    with pytest.raises(SystemExit):
+        main(["learn-k", "--object", "cube,stick", "--split", "objects"])
+    assert "--split objects needs 3 or more objects" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["learn-k", "--calibrate", "inertia"])
+    assert "--calibrate must name distinct factors" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="CUDA is available here")
+def test_cuda_device_is_refused_without_cuda(capsys):
+    with pytest.raises(SystemExit):
+        main(["learn-k", "--device", "cuda"])
+    assert "this machine has no CUDA device" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_learn_k_fits_on_cuda(tmp_path):
+    options = (
+        "--scene trifinger --object cube --trajectories 3 --steps 8 --actions random "
+        "--horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 --splits 1 "
+        "--device cuda --no-progress"
+    )
+    assert main(["learn-k", *options.split(), "--out", str(tmp_path)]) == 0
+    model, _, _ = load_checkpoint(tmp_path / "trifinger_cube" / "model.pt")
+    assert all(p.device.type == "cpu" for p in model.parameters())

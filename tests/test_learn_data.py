@@ -9,7 +9,7 @@ import torch
 
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn import data
-from torchcontact.learn.data import DataFormatError, collect, load, read_manifest
+from torchcontact.learn.data import DataFormatError, collect, load, load_objects, read_manifest
 from torchcontact.learn.scenes import make_scene
 from torchcontact.mpc.controller import ContactImplicitMPC
 
@@ -227,3 +227,31 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path, bad, mes
     with pytest.raises(ValueError, match=message):
         collect(directory, trajectories=1, progress=False, **{**SCENE, **bad})
     assert not directory.exists()
+
+
+def test_objects_join_with_their_own_systems_and_split_whole(dataset, tmp_path):
+    """Datasets of several objects join into one set: rows indexed by object, trajectory ids
+    unique, each object's system kept; an object split puts every object in one set only."""
+    other = tmp_path / "random-5"
+    collect(
+        other, "trifinger", "random-5", trajectories=3, steps=6, actions="random", progress=False
+    )
+    third = tmp_path / "stick"
+    collect(third, "trifinger", "stick", trajectories=3, steps=6, actions="random", progress=False)
+    joined = load_objects([dataset, other, third])
+    assert joined.meta["objects"] == ["cube", "random-5", "stick"]
+    assert len(joined.meta["systems"]) == 3 and len(joined) == 54
+    assert len(joined.trajectory_ids()) == 9
+    for seed in range(4):
+        parts = joined.split_objects(seed=seed)
+        sets = [set(part.object_ids()) for part in parts]
+        assert sorted(map(len, sets)) == [1, 1, 1] and set.union(*sets) == {0, 1, 2}
+        assert all(len(window) for part in parts for window in part.windows(3))
+    with pytest.raises(DataFormatError, match="each object must come once"):
+        load_objects([dataset, dataset])
+    box = tmp_path / "box"
+    collect(box, "box_pushing", trajectories=1, steps=4, actions="random", progress=False)
+    with pytest.raises(DataFormatError, match="differs from"):
+        load_objects([dataset, box])
+    with pytest.raises(ValueError, match="splitting needs at least 3 objects"):
+        load_objects([dataset, other]).split_objects()

@@ -16,7 +16,7 @@ from torchcontact.checkpoint import (
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import one_step_error, rollout_error, sweep_constant
-from torchcontact.learn.fit import StepData, fit, fit_tensors, predict_poses, system_terms
+from torchcontact.learn.fit import StepData, fit, fit_steps, predict_poses, system_terms
 from torchcontact.learn.scenes import make_scene
 
 
@@ -31,11 +31,12 @@ def transitions(tmp_path_factory):
 def test_precomputed_step_equals_the_model(transitions, kind):
     meta = transitions.meta
     model = build_model(FitConfig(stiffness=kind, damping=kind), meta).double()
-    data = StepData.from_transitions(transitions, meta["facets"], torch.float64)
+    data = StepData.from_transitions(transitions, dtype=torch.float64)
     Q, b = system_terms(meta, transitions.u)
     v = model(Q, b, transitions.contacts.to(torch.float64), meta["h"], q=transitions.q)
     expected = integrate(transitions.q, v, meta["h"], JointLayout(meta["joints"]))[:, :7]
-    torch.testing.assert_close(predict_poses(model, data)[:, 0], expected)
+    order = torch.argsort(transitions.trajectory * 100 + transitions.step)
+    torch.testing.assert_close(predict_poses(model, data)[:, 0, 0], expected[order])
 
 
 def _synthetic(transitions, stiffness):
@@ -58,10 +59,10 @@ def test_fit_recovers_a_known_constant_stiffness(transitions):
     )
     model = build_model(config, meta)
     assert model.stiffness.log_value.detach().exp().item() == pytest.approx(0.5)
-    result = fit(
+    result = fit_steps(
         model,
-        StepData.from_transitions(train, meta["facets"]),
-        StepData.from_transitions(val, meta["facets"]),
+        StepData.from_transitions(train),
+        StepData.from_transitions(val),
         tuple(meta["pose_weights"]),
         config,
         progress=False,
@@ -71,19 +72,20 @@ def test_fit_recovers_a_known_constant_stiffness(transitions):
 
 
 def test_plain_tensors_give_the_datasets_step_and_recover_a_known_stiffness(transitions):
-    """``fit_tensors`` needs no dataset folder or manifest: the scene's system and the rows."""
+    """``fit`` needs no dataset folder or manifest: the scene's system and the rows."""
     meta = transitions.meta
     system = make_scene("trifinger", "cube").system
+    order = torch.argsort(transitions.trajectory * 100 + transitions.step)
     rows = (transitions.q, transitions.u, transitions.q_next, transitions.contacts)
-    plain = StepData.from_tensors(*rows, system, meta["h"], meta["joints"], meta["facets"])
-    stored = StepData.from_transitions(transitions, meta["facets"])
-    for field in ("gap", "phi", "free", "response", "pose", "target"):
+    plain = StepData.from_tensors(*(row[order] for row in rows), system, meta["h"], meta["joints"])
+    stored = StepData.from_transitions(transitions)
+    for field in ("q", "u", "metric", "bias", "B", "pose", "target", "object_rows"):
         torch.testing.assert_close(getattr(plain, field), getattr(stored, field))
     synthetic = _synthetic(transitions, 2.5)
     config = FitConfig(
         stiffness="constant", damping="paper", epochs=150, batch_size=64, lr=0.05, patience=150
     )
-    result = fit_tensors(
+    result = fit(
         build_model(config, meta),
         synthetic.q,
         synthetic.u,
@@ -99,14 +101,18 @@ def test_plain_tensors_give_the_datasets_step_and_recover_a_known_stiffness(tran
     assert result.model.stiffness.value == pytest.approx(2.5, rel=0.03)
     with pytest.raises(ValueError, match="u must have"):
         StepData.from_tensors(transitions.q, transitions.u[:3], *rows[2:], system, 0.1, ["free"])
+    with pytest.raises(ValueError, match="loss_horizon must be 1"):
+        fit(
+            build_model(config, meta), *rows, system, 0.1, meta["joints"], FitConfig(loss_horizon=2)
+        )
 
 
 def test_learned_network_beats_the_initial_model_on_its_training_loss(transitions):
     meta = transitions.meta
     config = FitConfig(stiffness="contact_network", damping="relative", epochs=5, patience=5)
-    data = StepData.from_transitions(transitions, meta["facets"])
+    data = StepData.from_transitions(transitions)
     weights = tuple(meta["pose_weights"])
-    result = fit(build_model(config, meta), data, data, weights, config, progress=False)
+    result = fit_steps(build_model(config, meta), data, data, weights, config, progress=False)
     initial = one_step_error(build_model(config, meta), data, meta["pose_weights"])
     learned = one_step_error(result.model, data, meta["pose_weights"])
     assert learned["combined"] <= initial["combined"]
@@ -122,7 +128,7 @@ def test_checkpoint_round_trip_and_bad_file(transitions, tmp_path):
     path = save_checkpoint(tmp_path / "model.pt", model, config, meta)
     loaded, loaded_config, loaded_meta = load_checkpoint(path)
     assert loaded_config == config and loaded_meta == meta
-    data = StepData.from_transitions(transitions, meta["facets"])
+    data = StepData.from_transitions(transitions)
     torch.testing.assert_close(predict_poses(loaded, data), predict_poses(model, data))
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(ValueError, match="model.pt: not a readable checkpoint"):
@@ -144,7 +150,7 @@ def test_one_step_rollout_equals_the_one_step_error(transitions):
     detector = make_scene("trifinger", "cube").plant.detector
     model = constant_model(0.5, meta)
     rollout = rollout_error(model, transitions, detector, horizon=1, stride=1)
-    data = StepData.from_transitions(transitions, meta["facets"], torch.float64)
+    data = StepData.from_transitions(transitions, dtype=torch.float64)
     one_step = one_step_error(model, data, meta["pose_weights"])
     assert rollout["windows"] == len(transitions)
     for key in ("pos_mm", "angle_deg", "combined"):

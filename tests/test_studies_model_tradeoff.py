@@ -134,7 +134,7 @@ def test_hand_errors_line_up_with_learn_k(quick):
     setting = to.Setting("cf", 4, gamma=meta["gamma"], stiffness=scene.stiffness, damping=0.1)
     errors = to.errors(scene, to.build_model(setting), setting)
     model = constant_model(scene.stiffness, meta)
-    data = StepData.from_transitions(scene.transitions, 4, dtype=torch.float64)
+    data = StepData.from_transitions(scene.transitions, dtype=torch.float64)
     reference = one_step_error(model, data, scene.weights)
     assert errors["one_step_combined"] == pytest.approx(reference["combined"], rel=1e-6)
     # learn-k re-detects the first step's contacts; here they are the recorded float32 ones.

@@ -4,6 +4,7 @@ The contact layer is pure torch; ``torchcontact.sim`` bridges MuJoCo, ``torchcon
 plans through the model and ``torchcontact.learn`` fits its stiffness from data.
 """
 
+from torchcontact.calibration import SystemCalibration
 from torchcontact.contacts import Contacts, facet_directions
 from torchcontact.functional import cf_multipliers, cf_velocity, softplus
 from torchcontact.integrate import JointLayout, integrate
@@ -46,6 +47,7 @@ __all__ = [
     "PARAMETERIZATIONS",
     "AnitescuQP",
     "ComplementarityFree",
+    "SystemCalibration",
     "Constant",
     "ContactModel",
     "ContactNetwork",

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from torchcontact.calibration import PARTS, SystemCalibration
 from torchcontact.model import ComplementarityFree
 from torchcontact.networks import ObjectContactNetwork
 from torchcontact.results import atomic_write
@@ -59,6 +60,15 @@ class FitConfig:
         lr: Adam's learning rate.
         patience: stop after this many epochs without a better validation loss.
         seed: seed of the initialization and the batch order.
+        calibrate: the system factors fitted with K and D (a subset of
+            :data:`~torchcontact.calibration.PARTS`); empty: none, the model has no
+            calibration.
+        loss_horizon: steps of the training loss: 1 the one-step pose error, H > 1 the mean
+            pose error over H steps rolled out with the contacts frozen at the window's first
+            state, as the MPC plans.
+        robot_weight: weight of the robot's coordinates' squared error in the loss [1/m² or
+            1/rad²]; 0: the objects' pose error only (the robot's stiffness factor then has no
+            gradient: unopposed, the command gain alone moves the robot).
     """
 
     stiffness: str = "contact_network"
@@ -71,6 +81,9 @@ class FitConfig:
     lr: float = 1e-2
     patience: int = 20
     seed: int = 0
+    calibrate: tuple[str, ...] = ()
+    loss_horizon: int = 1
+    robot_weight: float = 0.0
 
     def __post_init__(self) -> None:
         if self.stiffness not in STIFFNESS_KINDS:
@@ -81,10 +94,20 @@ class FitConfig:
             math.isfinite(self.initial_stiffness) and self.initial_stiffness > 0
         ):
             raise ValueError(f"initial_stiffness must be positive, got {self.initial_stiffness!r}")
-        for name in ("hidden", "epochs", "batch_size", "patience"):
+        object.__setattr__(self, "calibrate", tuple(self.calibrate))
+        unknown = [part for part in self.calibrate if part not in PARTS]
+        if unknown or len(set(self.calibrate)) != len(self.calibrate):
+            raise ValueError(
+                f"calibrate must name distinct factors of {PARTS}, got {self.calibrate}"
+            )
+        for name in ("hidden", "epochs", "batch_size", "patience", "loss_horizon"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not (math.isfinite(self.robot_weight) and self.robot_weight >= 0):
+            raise ValueError(
+                f"robot_weight must be non-negative and finite, got {self.robot_weight!r}"
+            )
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
 
@@ -115,7 +138,10 @@ def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
         damping = None
     else:
         damping = _parameterization(config.damping, 0.1 * value, meta, config)
-    return ComplementarityFree(stiffness, damping, gamma=meta["gamma"], facets=meta["facets"])
+    calibration = SystemCalibration(meta["nu"], config.calibrate) if config.calibrate else None
+    return ComplementarityFree(
+        stiffness, damping, gamma=meta["gamma"], facets=meta["facets"], calibration=calibration
+    )
 
 
 def constant_model(stiffness: float, meta: dict) -> ComplementarityFree:

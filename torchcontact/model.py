@@ -14,6 +14,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
+from torchcontact.calibration import SystemCalibration
 from torchcontact.contacts import Contacts
 from torchcontact.frozen import FrozenComplementarityFree, FrozenRelaxedQP
 from torchcontact.functional import (
@@ -48,7 +49,12 @@ class ContactModel(nn.Module):
 
     def impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         """Per-contact impulses: ``normal (..., nc)`` and ``friction (..., nc, 2)`` in (t₁, t₂)."""
-        return contacts.impulses(self.row_impulses(Q, b, contacts, h, q)[1], self.facets)
+        row = self.row_impulses(Q, b, contacts, h, q)[1]
+        return self.calibrated(contacts).impulses(row, self.facets)
+
+    def calibrated(self, contacts: Contacts) -> Contacts:
+        """``contacts`` as the model sees them (the complementarity-free model may scale μ)."""
+        return contacts
 
     def freeze(self, contacts: Contacts, h: float, q=None, *, compile: bool = False):
         """The step at ``contacts`` (unbatched, ``nc`` slots) and state ``q (nq,)`` frozen, for
@@ -76,6 +82,9 @@ class ComplementarityFree(ContactModel):
             D = 0.1·K.
         gamma: softplus sharpness γ; None for the exact ``max(·, 0)``.
         facets: friction-cone facets n_d per contact (4 by default, 8 for a finer cone).
+        calibration: a fitted :class:`~torchcontact.calibration.SystemCalibration` or None.
+            The model scales its contacts' μ by the calibration's friction factor; the
+            caller's system should be ``calibration.apply(system)`` (the MPC's is).
 
     Call: ``model(Q, b, contacts, h, q=None)`` with ``Q (..., nv)`` or ``(..., nv, nv)``,
     ``b (..., nv)``, :class:`Contacts` of batch shape ``...``, ``h`` [s] and, for
@@ -88,6 +97,7 @@ class ComplementarityFree(ContactModel):
         damping: Parameterization | float | str | None = None,
         gamma: float | None = 100.0,
         facets: int = 4,
+        calibration: SystemCalibration | None = None,
     ):
         super().__init__()
         if gamma is not None and not (
@@ -101,6 +111,15 @@ class ComplementarityFree(ContactModel):
         self.damping = None if damping is None else parameterization(damping, name="damping")
         self.gamma = None if gamma is None else float(gamma)
         self.facets = _check_facets(facets)
+        if calibration is not None and not isinstance(calibration, SystemCalibration):
+            raise ValueError(
+                f"calibration must be a SystemCalibration or None, got {calibration!r}"
+            )
+        self.calibration = calibration
+
+    def calibrated(self, contacts: Contacts) -> Contacts:
+        """``contacts`` as the model sees them: μ scaled by the calibration, if any."""
+        return contacts if self.calibration is None else self.calibration.contacts(contacts)
 
     def coefficients(self, contacts: Contacts, q=None):
         """K(q) and D(q) (None without damping), each broadcastable to ``(..., nc·n_d)``.
@@ -115,6 +134,7 @@ class ComplementarityFree(ContactModel):
     def freeze(
         self, contacts: Contacts, h: float, q=None, *, compile: bool = False
     ) -> FrozenComplementarityFree:
+        contacts = self.calibrated(contacts)
         jac, phi, _ = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
         normal = contacts.jac_normal * contacts.active.to(phi.dtype).unsqueeze(-1)
@@ -129,6 +149,7 @@ class ComplementarityFree(ContactModel):
         )
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        contacts = self.calibrated(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
         lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma)

@@ -30,10 +30,11 @@ def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
 
 
 class QuasiDynamic(nn.Module):
-    """Quasi-dynamic system: ``Q = blkdiag(εMₒ/h², Kᵣ)``, ``b = (τₒ, Kᵣu + τᵣ)``.
+    """Quasi-dynamic system: ``Q = blkdiag(εMₒ/h², Kᵣ)``, ``b = (τₒ, Kᵣ(g ⊙ u) + τᵣ)``.
 
     The robot is a stiff position-controlled spring: without contact it moves by exactly ``u``
-    in one step; the object is nearly massless (ε small) and moves only when pushed.
+    (or ``g ⊙ u`` with a command gain g) in one step; the object is nearly massless (ε small)
+    and moves only when pushed.
 
     Args:
         object_metric: ``(n_o,)`` εMₒ/h², the object's (diagonal) metric [N/m, N·m/rad].
@@ -42,6 +43,9 @@ class QuasiDynamic(nn.Module):
         object_dofs: the object's velocity indices in v; default the first n_o. The robot
             takes the remaining indices in order.
         n_robot: the robot's DoF count when ``robot_stiffness`` is a float.
+        command_gain: ``(n_r,)`` positive g, the fraction of its command the robot covers in
+            one step unopposed (a fitted :class:`~torchcontact.calibration.SystemCalibration`
+            sets it); None: 1.
 
     Call: ``system(u, robot_force=None)`` with ``u: (..., n_r)`` the robot's commanded
     displacement [m or rad] and ``robot_force: (..., n_r)`` τᵣ; returns ``Q: (nv,)`` and
@@ -56,6 +60,7 @@ class QuasiDynamic(nn.Module):
         object_force,
         object_dofs: Sequence[int] | None = None,
         n_robot: int | None = None,
+        command_gain=None,
     ):
         super().__init__()
         metric = _vector("object_metric", object_metric)
@@ -82,6 +87,10 @@ class QuasiDynamic(nn.Module):
         self.register_buffer("robot_stiffness", stiffness)
         self.register_buffer("object_force", _vector("object_force", object_force, n_o))
         self.register_buffer("_from_blocks", torch.argsort(order), persistent=False)
+        if command_gain is not None:
+            command_gain = _vector("command_gain", command_gain, n_r)
+            check_positive("command_gain", command_gain)
+        self.register_buffer("command_gain", command_gain)
         self.n_object, self.n_robot = n_o, n_r
 
     @property
@@ -98,6 +107,8 @@ class QuasiDynamic(nn.Module):
         check_finite("u", u)
         if robot_force is not None:
             check_finite("robot_force", robot_force)
+        if self.command_gain is not None:
+            u = self.command_gain * u
         robot = self.robot_stiffness * u
         if robot_force is not None:
             robot = robot + robot_force

@@ -1,17 +1,22 @@
-"""``torchcontact learn-k``: learn K(q) and D(q) of a scene from MuJoCo rollouts and compare.
+"""``torchcontact learn-k``: learn a scene's model from MuJoCo rollouts and judge it on unseen
+objects.
 
-The pipeline, one stage per line of :func:`run`::
+The pipeline::
 
-    collect(data_dir, scene, obj, ...)            # MuJoCo transitions (reused, resumed)
-    train, val, test = load(data_dir).split()    # by trajectory
-    sweep = sweep_constant(grid, val, detector)   # best constant K by 10-step rollouts
-    result = fit(model, train, val, ...)          # learned K(q), D(q) on the one-step loss
-    evaluation = ... paper K, best K, learned     # one step and 10-step rollouts on test
+    collect(data/SCENE_OBJECT_..., scene, obj, ...)   # per object (reused, resumed)
+    transitions = load_objects(...)                    # one set, objects indexed
+    for each of --splits object splits (seed, seed + 1, ...):
+        train, val, test = transitions.split_objects() # no object in two sets
+        sweep = sweep_constant(grid, val, detectors)   # best constant K on val objects
+        result = fit_steps(model, train, val, ...)     # K(q), D(q) and the system factors
+        evaluation = ... paper K, best K, learned      # 10-step rollouts on test objects
 
-Writes ``OUT/SCENE_OBJECT/results.json`` (everything measured), ``model.pt`` (the learned
-model's checkpoint, :func:`~torchcontact.checkpoint.load_checkpoint`) and ``history.csv``
-(losses per epoch); ``--json PATH`` writes the headline figures. Errors are means over the
-test windows; the combined error is the MPC's ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)``.
+Writes ``OUT/SCENE_OBJECTS/results.json`` (everything measured, per split),
+``model.pt`` (the first split's learned model, :func:`~torchcontact.checkpoint.load_checkpoint`)
+and ``history.csv`` (its losses per epoch); ``--json PATH`` writes the headline figures: the
+improvement over the best constant K on held-out objects, mean and standard deviation over the
+splits. Errors are means over the test windows; the combined error is the MPC's
+``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)``.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import datetime
 import functools
 import math
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -28,7 +34,9 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 import torch
+from tqdm.auto import tqdm
 
+from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import (
     DAMPING_KINDS,
     STIFFNESS_KINDS,
@@ -40,7 +48,7 @@ from torchcontact.checkpoint import (
 from torchcontact.cli import writable_directory, writable_file
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.learn.data import MANIFEST, collect, load
+from torchcontact.learn.data import MANIFEST, collect, load_objects
 from torchcontact.learn.evaluate import (
     log_grid,
     one_step_error,
@@ -48,7 +56,7 @@ from torchcontact.learn.evaluate import (
     still_error,
     sweep_constant,
 )
-from torchcontact.learn.fit import StepData, fit
+from torchcontact.learn.fit import StepData, fit_steps
 from torchcontact.learn.policies import ACTIONS
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
@@ -62,6 +70,13 @@ from torchcontact.shipped import models_dir
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
 """Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
 
+DEFAULT_OBJECTS = {"trifinger": "all,random:0-29", "allegro": "all,random:0-29"}
+"""Objects by scene (else ``all``, or ``cube`` for box pushing): the built-in ones and 30
+generated tuning objects (seeds below 1000, so the reported generated objects stay unseen)."""
+
+DEFAULT_CALIBRATE = ("command_gain", "robot_stiffness", "object_metric")
+"""The system factors fitted by default (``friction`` is optional)."""
+
 MODELS = ("paper_k", "best_constant_k", "learned")
 LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned": "learned"}
 
@@ -69,13 +84,24 @@ LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned":
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="torchcontact learn-k",
-        description="Learn the contact stiffness K(q) and damping D(q) from MuJoCo rollouts.",
+        description="Learn the contact model K(q), D(q) and the system's factors from MuJoCo "
+        "rollouts of many objects; judge it on held-out objects.",
     )
     add = parser.add_argument
     add("--scene", choices=SCENES, default="trifinger")
-    add("--object", default="cube", help="an object of the scene's suite")
+    add(
+        "--object",
+        default=None,
+        help="objects, comma-separated: names, 'all' (the built-in ones), random-SEED, "
+        f"random:A-B (tune on seeds < 1000) or mesh files (default {DEFAULT_OBJECTS}, else all)",
+    )
     add("--task", default=None, help="the suite task whose sampler starts each trajectory")
-    add("--trajectories", type=int, default=400, help="trajectories used (collected if missing)")
+    add(
+        "--trajectories",
+        type=int,
+        default=20,
+        help="trajectories per object (collected if missing)",
+    )
     add("--steps", type=int, default=None, help=f"steps per trajectory (default {DEFAULT_STEPS})")
     add(
         "--actions",
@@ -88,15 +114,35 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--workers", type=int, default=1, help="parallel collection processes (or Ray CPUs)")
     add("--backend", choices=BACKENDS, default="local", help=f"local or Ray ({RAY_EXTRA})")
     add("--address", default=None, help="(ray) a running cluster's address")
-    add("--data", type=Path, default=None, help="dataset directory (default under --out)")
+    add("--data", type=Path, default=None, help="folder of the datasets (default OUT/data)")
+    add(
+        "--split",
+        choices=("objects", "trajectories"),
+        default=None,
+        help="hold out whole objects (default, 3+ objects) or trajectories (one object)",
+    )
+    add("--splits", type=int, default=5, help="random splits, each fitted and judged")
     add("--stiffness", choices=STIFFNESS_KINDS, default="contact_network", help="K(q)")
     add("--damping", choices=DAMPING_KINDS, default="contact_network", help="D(q)")
+    add(
+        "--calibrate",
+        default=",".join(DEFAULT_CALIBRATE),
+        help=f"system factors fitted with K and D, comma-separated from {PARTS}, or 'none'",
+    )
+    add("--loss-horizon", type=int, default=1, help="steps of the training loss's rollouts")
+    add(
+        "--robot-weight",
+        type=float,
+        default=1.0,
+        help="weight of the robot's coordinates' squared error in the loss [1/rad² or 1/m²]",
+    )
     add("--hidden", type=int, default=32, help="hidden units of the networks")
     add("--distance-scale", type=float, default=1e-4, help="φ feature scale [m]")
     add("--epochs", type=int, default=300)
     add("--batch-size", type=int, default=512)
     add("--lr", type=float, default=3e-3)
     add("--patience", type=int, default=40, help="early stopping patience [epochs]")
+    add("--device", default="cpu", help="where the fit runs: cpu or cuda")
     add(
         "--sweep",
         type=float,
@@ -107,27 +153,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     add("--horizon", type=int, default=10, help="rollout steps of the evaluation")
     add("--stride", type=int, default=5, help="a rollout starts every STRIDE steps")
-    add("--seed", type=int, default=0, help="data, split and fit seed")
+    add("--seed", type=int, default=0, help="data seed and the first split's seed")
     add("--out", type=Path, default=Path("results/learn"))
     add("--json", type=Path, default=None, help="write the headline figures here")
     add(
         "--ship",
         action="store_true",
-        help="also install the learned model as the scene's shipped default, with its manifest "
-        "(torchcontact/assets/models/SCENE.pt and .json)",
+        help="also install the first split's model as the scene's shipped default, with its "
+        "manifest (torchcontact/assets/models/SCENE.pt and .json)",
     )
     add("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride", "workers")
-    for name in positive:
+    for name in (*positive, "splits", "loss_horizon"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     try:
         check_backend(args.workers, args.backend, args.address)
     except (ValueError, ImportError) as error:
         parser.error(f"--backend/--address/--workers: {error}")
-    if args.trajectories < 3:
-        parser.error(f"--trajectories must be >= 3 (train, val, test), got {args.trajectories}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
     if not 0 < args.distance_scale < math.inf:
@@ -136,6 +180,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(
             f"--noise must be a non-negative finite fraction of the control bound, got {args.noise}"
         )
+    if args.device not in ("cpu", "cuda") and not args.device.startswith("cuda:"):
+        parser.error(f"--device must be cpu or cuda, got {args.device!r}")
+    if args.device != "cpu" and not torch.cuda.is_available():
+        parser.error(f"--device {args.device}: this machine has no CUDA device")
+    args.calibrate = () if args.calibrate == "none" else tuple(args.calibrate.split(","))
     _check_fit_options(parser, args)
     _check_scene(parser, args)
     args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
@@ -143,54 +192,99 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.actions = "random" if args.scene == BOX_PUSHING else "mpc"
     elif args.scene == BOX_PUSHING and args.actions != "random":
         parser.error(f"--actions must be random for box_pushing (no MPC task), got {args.actions}")
-    if args.steps <= args.horizon:
-        parser.error(f"--steps must exceed --horizon ({args.horizon}), got {args.steps}")
+    if args.steps <= max(args.horizon, args.loss_horizon):
+        parser.error(
+            f"--steps must exceed --horizon and --loss-horizon "
+            f"({max(args.horizon, args.loss_horizon)}), got {args.steps}"
+        )
+    _check_split(parser, args)
     low, high, count = args.sweep
     if not (0 < low < high < math.inf) or count < 2 or count != int(count):
         parser.error(f"--sweep needs finite 0 < LOW < HIGH and an integer N >= 2, got {args.sweep}")
     args.grid = log_grid(low, high, int(count))
-    name = f"{args.scene}_{Path(args.object).stem}"
-    args.results = args.out / name
+    label = Path(args.object).stem if len(args.objects) == 1 else re.sub(r"[,:/]", "_", args.object)
+    args.results = args.out / f"{args.scene}_{label}"
     if args.data is None:
-        args.data = args.out / "data" / f"{name}_{args.actions}_steps{args.steps}_seed{args.seed}"
+        args.data = args.out / "data"
     return args
 
 
 def _check_fit_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """The checks of :class:`FitConfig` on the options that become its fields."""
-    names = [f.name for f in fields(FitConfig) if f.name != "initial_stiffness"]
     try:
-        FitConfig(**{name: getattr(args, name) for name in names})
+        FitConfig(**_fit_fields(args))
     except ValueError as error:
         field, _, rest = str(error).partition(" ")
         parser.error(f"--{field.replace('_', '-')} {rest}")
 
 
+def _fit_fields(args: argparse.Namespace) -> dict:
+    """The options that are :class:`FitConfig` fields, by name."""
+    return {
+        f.name: getattr(args, f.name) for f in fields(FitConfig) if f.name != "initial_stiffness"
+    }
+
+
 def _check_scene(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """``--object`` and ``--task`` against the scene's suite (as :func:`make_scene` does)."""
+    """``--object`` and ``--task`` against the scene (as :func:`make_scene` does); sets
+    ``args.objects``, the object names in order."""
     if args.scene == BOX_PUSHING:
+        args.object = args.object or "cube"
         if args.object != "cube" or args.task not in (None, "push"):
             parser.error(
                 f"--object and --task of box_pushing are cube and push only, got "
                 f"{args.object!r}, {args.task!r}"
             )
+        args.objects = ["cube"]
         return
     env = environment(args.scene)
-    tasks = [t for t, o in env.pairs if o == args.object]
-    if not tasks:
-        parser.error(f"--object must be one of {env.objects} for {args.scene}, got {args.object!r}")
-    if args.task is not None and args.task not in tasks:
-        parser.error(f"--task must be one of {tasks} for {args.object}, got {args.task!r}")
+    args.object = args.object or DEFAULT_OBJECTS.get(args.scene, "all")
+    objects = []
+    for piece in args.object.split(","):
+        try:
+            pairs = env.select(args.task or "all", piece)
+        except ValueError as error:
+            parser.error(f"--object/--task: {error}")
+        objects += [obj for _, obj in pairs if obj not in objects]
+    args.objects = objects
+
+
+def _check_split(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``--split`` (defaulted by the object count) against the objects and trajectories."""
+    if args.split is None:
+        args.split = "objects" if len(args.objects) >= 3 else "trajectories"
+    if args.split == "objects" and len(args.objects) < 3:
+        parser.error(
+            f"--split objects needs 3 or more objects (train, val, test), got {args.objects}; "
+            "use --split trajectories"
+        )
+    if args.split == "trajectories" and args.trajectories * len(args.objects) < 3:
+        parser.error(
+            f"--trajectories must give 3 or more trajectories (train, val, test), got "
+            f"{args.trajectories}"
+        )
+
+
+def dataset_dir(args: argparse.Namespace, obj: str) -> Path:
+    """The dataset folder of object ``obj`` under ``--data``."""
+    return (
+        args.data
+        / f"{args.scene}_{Path(obj).stem}_{args.actions}_steps{args.steps}_seed{args.seed}"
+    )
 
 
 def check_outputs(args: argparse.Namespace) -> None:
     """Check, before anything runs, that every output can be written: ``--out`` (created),
-    the results folder, the dataset folder ``--data`` and ``--json``."""
+    the results folder, the datasets' folders under ``--data`` and ``--json``."""
     writable_directory("--out", args.out)
     writable_directory("--out", args.results, create=False)
     writable_directory("--data", args.data, create=False)
-    if (args.data / MANIFEST).is_dir():
-        raise ValueError(f"--data must be a dataset directory, {args.data / MANIFEST} is a folder")
+    for obj in args.objects:
+        directory = dataset_dir(args, obj)
+        if (directory / MANIFEST).is_dir():
+            raise ValueError(
+                f"--data must hold dataset folders, {directory / MANIFEST} is a folder"
+            )
     if args.json is not None:
         writable_file("--json", args.json)
 
@@ -207,66 +301,88 @@ def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
     )
 
 
-def evaluate_models(models: dict, steps, test, detector, weights, args) -> dict:
-    """One-step and ``args.horizon``-step rollout errors of each model on the test split."""
+def evaluate_models(models: dict, test, detectors, weights, args) -> dict:
+    """One-step and ``args.horizon``-step rollout errors of each model on the test set."""
     window = (args.horizon, args.stride)
+    steps = StepData.from_transitions(test)
     return {
         key: {
             "one_step": one_step_error(model, steps, weights),
-            "rollout": rollout_error(model, test, detector, *window),
-            "rollout_robot_recorded": rollout_error(model, test, detector, *window, "recorded"),
+            "rollout": rollout_error(model, test, detectors, *window),
+            "rollout_robot_recorded": rollout_error(model, test, detectors, *window, "recorded"),
         }
         for key, model in models.items()
     }
 
 
-def run(args: argparse.Namespace) -> dict:
-    """Collect, split, sweep, fit and evaluate; returns the record written to results.json."""
-    progress = not args.no_progress
-    collect(
-        args.data,
-        args.scene,
-        args.object,
-        trajectories=args.trajectories,
-        steps=args.steps,
-        actions=args.actions,
-        seed=args.seed,
-        task=args.task,
-        noise=args.noise,
-        progress=progress,
-        planner=functools.partial(collection_mpc, compile=not args.no_compile),
-        workers=args.workers,
-        backend=args.backend,
-        address=args.address,
-    )
-    transitions = load(args.data, args.trajectories)
+def collect_all(args: argparse.Namespace) -> list[Path]:
+    """Each object's dataset (collected where missing); returns their folders."""
+    directories = []
+    for obj in args.objects:
+        directories.append(dataset_dir(args, obj))
+        collect(
+            directories[-1],
+            args.scene,
+            obj,
+            trajectories=args.trajectories,
+            steps=args.steps,
+            actions=args.actions,
+            seed=args.seed,
+            task=args.task,
+            noise=args.noise,
+            progress=not args.no_progress,
+            planner=functools.partial(collection_mpc, compile=not args.no_compile),
+            workers=args.workers,
+            backend=args.backend,
+            address=args.address,
+        )
+    return directories
+
+
+def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> dict:
+    """One split: sweep the constant K on its validation objects, fit on its training
+    objects, evaluate on its test objects. Returns its record, with ``"model"`` (the fitted
+    model), ``"config"`` and ``"history"``."""
     meta = transitions.meta
-    splits = dict(zip(("train", "val", "test"), transitions.split(seed=args.seed), strict=True))
-    steps = {name: StepData.from_transitions(part, meta["facets"]) for name, part in splits.items()}
-    detector = make_scene(args.scene, args.object, meta["task"]).plant.detector
+    if args.split == "objects":
+        parts = transitions.split_objects(seed=seed)
+    else:
+        parts = transitions.split(seed=seed)
+    train, val, test = parts
     weights = tuple(meta["pose_weights"])
-
-    sweep = sweep_constant(args.grid, splits["val"], detector, args.horizon, args.stride)
+    sweep = sweep_constant(args.grid, val, detectors, args.horizon, args.stride)
     best_k = min(sweep, key=lambda row: row["combined"])["stiffness"]
-    names = [f.name for f in fields(FitConfig) if f.name != "initial_stiffness"]
-    config = FitConfig(initial_stiffness=best_k, **{name: getattr(args, name) for name in names})
-    result = fit(build_model(config, meta), steps["train"], steps["val"], weights, config, progress)
-
+    config = FitConfig(initial_stiffness=best_k, **{**_fit_fields(args), "seed": seed})
+    data = {
+        name: StepData.from_transitions(part, args.loss_horizon).to(args.device)
+        for name, part in (("train", train), ("val", val))
+    }
+    progress = not args.no_progress
+    result = fit_steps(
+        build_model(config, meta), data["train"], data["val"], weights, config, progress
+    )
+    learned = result.model.cpu()
     models = {
         "paper_k": constant_model(meta["paper_stiffness"], meta),
         "best_constant_k": constant_model(best_k, meta),
-        "learned": result.model,
+        "learned": learned,
     }
-    evaluation = evaluate_models(models, steps["test"], splits["test"], detector, weights, args)
-    args.results.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(args.results / "model.pt", result.model, config, meta)
-    write_csv(args.results / "history.csv", result.history)
+    evaluation = evaluate_models(models, test, detectors, weights, args)
 
     def improvement(kind: str, statistic: str = "combined") -> float:
         learned, best = (evaluation[key][kind][statistic] for key in ("learned", "best_constant_k"))
         return 1.0 - learned / best
 
+    names = meta["objects"]
     return {
+        "seed": seed,
+        **{
+            f"{name}_objects": [names[i] for i in part.object_ids()]
+            for name, part in zip(("train", "val", "test"), parts, strict=True)
+        },
+        "transitions": {
+            name: len(part) for name, part in zip(("train", "val", "test"), parts, strict=True)
+        },
         **{f"rollout10_err_{key}": evaluation[key]["rollout"]["combined"] for key in MODELS},
         "improvement_vs_best_constant": improvement("rollout"),
         "improvement_vs_best_constant_median": improvement("rollout", "combined_median"),
@@ -277,80 +393,134 @@ def run(args: argparse.Namespace) -> dict:
             for key in MODELS
         },
         "improvement_vs_best_constant_robot_recorded": improvement("rollout_robot_recorded"),
-        "fit_seconds": result.seconds,
-        "transitions": len(transitions),
-        "paper_k": meta["paper_stiffness"],
         "best_constant_k": best_k,
-        "horizon": args.horizon,
-        "scene": args.scene,
-        "object": args.object,
-        "data": str(args.data),
-        "splits": {name: len(part) for name, part in splits.items()},
+        "fit_seconds": result.seconds,
         "fit": {
             **asdict(config),
             "best_epoch": result.best_epoch,
             "epochs_run": len(result.history),
         },
+        "calibration": None if learned.calibration is None else learned.calibration.summary(),
         "sweep": sweep,
         "evaluation": evaluation,
-        "still_object": still_error(splits["test"], args.horizon, args.stride),
+        "still_object": still_error(test, args.horizon, args.stride),
+        "model": learned,
+        "config": config,
+        "history": result.history,
     }
 
 
-HEADLINE = (
+def _mean_sd(values: list[float]) -> tuple[float, float]:
+    """Mean and sample standard deviation (0 for one value)."""
+    mean = sum(values) / len(values)
+    if len(values) < 2:
+        return mean, 0.0
+    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+
+
+AVERAGED = (
     *(f"rollout10_err_{key}" for key in MODELS),
     "improvement_vs_best_constant",
     "improvement_vs_best_constant_median",
     *(f"rollout10_robot_recorded_err_{key}" for key in MODELS),
     "improvement_vs_best_constant_robot_recorded",
     "fit_seconds",
+)
+"""Per-split figures the record gives as the mean over splits (and ``…_sd``)."""
+
+
+def run(args: argparse.Namespace) -> dict:
+    """Collect, then per split sweep, fit and evaluate; returns the record written to
+    results.json (the first split's model saved beside it)."""
+    transitions = load_objects(collect_all(args), args.trajectories)
+    detectors = {obj: make_scene(args.scene, obj, args.task).plant.detector for obj in args.objects}
+    splits = []
+    for index in tqdm(range(args.splits), desc="splits", disable=args.no_progress, unit="split"):
+        splits.append(run_split(transitions, detectors, args.seed + index, args))
+    first = splits[0]
+    args.results.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(args.results / "model.pt", first["model"], first["config"], transitions.meta)
+    write_csv(args.results / "history.csv", first["history"])
+    summary = {}
+    for key in AVERAGED:
+        summary[key], summary[f"{key}_sd"] = _mean_sd([split[key] for split in splits])
+    meta = transitions.meta
+    return {
+        **summary,
+        "transitions": len(transitions),
+        "paper_k": meta["paper_stiffness"],
+        "horizon": args.horizon,
+        "scene": args.scene,
+        "objects": meta["objects"],
+        "split": args.split,
+        "data": str(args.data),
+        "splits": [
+            {k: v for k, v in split.items() if k not in ("model", "config", "history")}
+            for split in splits
+        ],
+    }
+
+
+HEADLINE = (
+    *AVERAGED,
+    "improvement_vs_best_constant_sd",
     "transitions",
     "paper_k",
-    "best_constant_k",
     "horizon",
+    "split",
 )
 
 
-def print_table(record: dict, stiffness: str) -> None:
-    """The comparison table of one run."""
-    splits, fit_record, horizon = record["splits"], record["fit"], record["horizon"]
-    print(
-        f"{record['scene']} {record['object']}: {record['transitions']} transitions (train "
-        f"{splits['train']}, val {splits['val']}, test {splits['test']}), fit "
-        f"{record['fit_seconds']:.1f} s ({fit_record['epochs_run']} epochs, best "
-        f"{fit_record['best_epoch']})"
-    )
-    header = f"{'pos mm':>8s} {'ang °':>7s} {'combined':>9s}"
-    print(
-        f"{'':<16s} {'':>15s} {'one step':^26s} {f'{horizon}-step rollout':^26s} "
-        f"{'recorded robot':>14s}"
-    )
-    print(f"{'model':<16s} {'K':>15s} {header} {header} {'combined':>14s}")
-    ks = {
-        "paper_k": f"{record['paper_k']:g}",
-        "best_constant_k": f"{record['best_constant_k']:.3g}",
-        "learned": stiffness,
+def headline(record: dict) -> dict:
+    """The ``--json`` figures: means and ``improvement_vs_best_constant_sd`` over the splits,
+    and each split's objects, best constant K and figures (``splits``)."""
+    keep = ("seed", "train_objects", "val_objects", "test_objects", "best_constant_k")
+    keep += AVERAGED + ("calibration",)
+    return {
+        **{key: record[key] for key in HEADLINE},
+        "splits": [{k: split[k] for k in keep} for split in record["splits"]],
     }
-    for key in MODELS:
-        parts = record["evaluation"][key]
-        cells = [
-            f"{part['pos_mm']:>8.2f} {part['angle_deg']:>7.2f} {part['combined']:>9.2e}"
-            for part in (parts["one_step"], parts["rollout"])
-        ]
-        recorded = parts["rollout_robot_recorded"]["combined"]
-        print(f"{LABELS[key]:<16s} {ks[key]:>15s} {cells[0]} {cells[1]} {recorded:>14.2e}")
-    still = record["still_object"]
+
+
+def print_table(record: dict, stiffness: str) -> None:
+    """The comparison table: per split, then the mean ± sd."""
+    splits, horizon = record["splits"], record["horizon"]
+    held = "objects" if record["split"] == "objects" else "trajectories"
     print(
-        f"{'objects kept still':<32s} {'':>26s} {still['pos_mm']:>8.2f} "
-        f"{still['angle_deg']:>7.2f} {still['combined']:>9.2e}  (how far they really moved)"
+        f"{record['scene']}: {record['transitions']} transitions of {len(record['objects'])} "
+        f"objects, {len(splits)} splits by {held}; {horizon}-step rollout combined error on "
+        f"held-out {held}"
     )
-    windows = record["evaluation"]["learned"]["rollout"]["windows"]
     print(
-        f"{horizon}-step combined error, learned vs best constant K ({windows} test windows): "
-        f"{100 * record['improvement_vs_best_constant']:.1f} % lower in the mean, "
-        f"{100 * record['improvement_vs_best_constant_median']:.1f} % in the median, "
-        f"{100 * record['improvement_vs_best_constant_robot_recorded']:.1f} % with the "
-        "recorded robot motion"
+        f"{'split':>5s} {'test objects':<28s} {'paper K':>9s} {'best K':>14s} "
+        f"{'learned':>9s} {'gain':>7s}"
+    )
+    for split in splits:
+        test = ",".join(split["test_objects"])
+        test = test if len(test) <= 28 else test[:25] + "..."
+        best = f"{split['rollout10_err_best_constant_k']:.3g} (K={split['best_constant_k']:.3g})"
+        print(
+            f"{split['seed']:>5d} {test:<28s} {split['rollout10_err_paper_k']:>9.3g} "
+            f"{best:>14s} {split['rollout10_err_learned']:>9.3g} "
+            f"{100 * split['improvement_vs_best_constant']:>6.1f}%"
+        )
+    print(
+        f"learned ({stiffness}) vs best constant K: "
+        f"{100 * record['improvement_vs_best_constant']:.1f} ± "
+        f"{100 * record['improvement_vs_best_constant_sd']:.1f} % lower in the mean over "
+        f"splits; median-window {100 * record['improvement_vs_best_constant_median']:.1f} %; "
+        f"with the recorded robot motion "
+        f"{100 * record['improvement_vs_best_constant_robot_recorded']:.1f} %"
+    )
+    calibration = splits[0].get("calibration")
+    if calibration:
+        factors = ", ".join(f"{name} {_fmt(values)}" for name, values in calibration.items())
+        print(f"first split's system factors: {factors}")
+
+
+def _fmt(values: list[float]) -> str:
+    return (
+        f"{values[0]:.3g}" if len(values) == 1 else "[" + " ".join(f"{v:.2f}" for v in values) + "]"
     )
 
 
@@ -362,7 +532,7 @@ def main(argv: list[str] | None = None) -> int:
     record = run(args)
     write_json(args.results / "results.json", record)
     if args.json is not None:
-        write_json(args.json, {key: record[key] for key in HEADLINE})
+        write_json(args.json, headline(record))
     print_table(record, args.stiffness)
     print(f"wrote {args.results}/results.json, model.pt, history.csv")
     if args.ship:
@@ -386,13 +556,17 @@ def ship_model(checkpoint: Path, scene: str, record: dict, command: list[str]) -
         "commit": _commit(),
         "sha256": file_sha256(target),
         "dataset": {
-            "object": record["object"],
+            "objects": record["objects"],
             "transitions": record["transitions"],
-            "splits": record["splits"],
+            "split": record["split"],
+            "model_split": {
+                k: record["splits"][0][k]
+                for k in ("seed", "train_objects", "val_objects", "test_objects")
+            },
         },
-        "fit": record["fit"],
+        "fit": record["splits"][0]["fit"],
         "versions": library_versions(),
-        "validation": {key: record[key] for key in HEADLINE},
+        "validation": headline(record),
     }
     write_json(target.with_suffix(".json"), manifest)
     return target
