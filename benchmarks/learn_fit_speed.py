@@ -1,9 +1,10 @@
 """Time the K(q), D(q) fit on a large dataset (the target: 100k transitions in <= 2 minutes).
 
-Collects the transitions with :func:`torchcontact.learn.data.collect` (resumable; a rerun
-reuses them), precomputes the K-independent pieces of the step and runs the same
-:func:`torchcontact.learn.fit.fit` as ``torchcontact learn-k``, one CPU thread. Prints a table
-and writes ``results/learn/fit_speed.json``::
+Collects the transitions with :func:`torchcontact.learn.data.collect` (random reach-and-push
+actions, resumable; a rerun reuses them), cuts them into the loss's windows and runs the same
+:func:`torchcontact.learn.fit.fit_steps` as ``torchcontact learn-k`` with its default model
+(contact-network K and D, the system calibration, the robot term), one CPU thread. Prints a
+table and writes ``results/learn/fit_speed.json``::
 
     python benchmarks/learn_fit_speed.py                       # 2000 x 50 = 100k transitions
     python benchmarks/learn_fit_speed.py --trajectories 40     # a quick check
@@ -28,7 +29,7 @@ from torchcontact.checkpoint import (  # noqa: E402
 )
 from torchcontact.learn.data import collect, load  # noqa: E402
 from torchcontact.learn.evaluate import one_step_error  # noqa: E402
-from torchcontact.learn.fit import StepData, fit  # noqa: E402
+from torchcontact.learn.fit import StepData, fit_steps  # noqa: E402
 from torchcontact.learn.scenes import SCENES  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 
@@ -46,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--batch-size", type=int, default=1024)
     parser.add_argument("--lr", type=float, default=3e-3)
+    parser.add_argument("--loss-horizon", type=int, default=1)
+    parser.add_argument("--robot-weight", type=float, default=1.0)
+    parser.add_argument("--calibrate", default="command_gain,robot_stiffness,object_metric")
+    parser.add_argument("--workers", type=int, default=1, help="collection processes")
     parser.add_argument("--out", type=Path, default=Path("results/learn"))
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -59,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         trajectories=args.trajectories,
         steps=args.steps,
         actions=args.actions,
-        mpc_options={"compile": True},
+        workers=args.workers,
     )
     start = time.perf_counter()
     transitions = load(data_dir, args.trajectories)
@@ -67,8 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     meta = transitions.meta
     train, val, test = transitions.split(seed=0)
     start = time.perf_counter()
-    steps = [StepData.from_transitions(part, meta["facets"]) for part in (train, val, test)]
-    precompute_s = time.perf_counter() - start
+    steps = [StepData.from_transitions(part, args.loss_horizon) for part in (train, val)]
+    steps.append(StepData.from_transitions(test))
+    windows_s = time.perf_counter() - start
     config = FitConfig(
         stiffness=args.stiffness,
         damping=args.damping,
@@ -77,9 +83,12 @@ def main(argv: list[str] | None = None) -> int:
         batch_size=args.batch_size,
         lr=args.lr,
         patience=args.epochs,
+        loss_horizon=args.loss_horizon,
+        robot_weight=args.robot_weight,
+        calibrate=tuple(filter(None, args.calibrate.split(","))),
     )
     weights = tuple(meta["pose_weights"])
-    result = fit(build_model(config, meta), steps[0], steps[1], weights, config)
+    result = fit_steps(build_model(config, meta), steps[0], steps[1], weights, config)
     paper = one_step_error(constant_model(meta["paper_stiffness"], meta), steps[2], weights)
     learned = one_step_error(result.model, steps[2], weights)
     epochs = len(result.history)
@@ -87,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         "transitions": len(transitions),
         "train_transitions": len(train),
         "load_seconds": load_s,
-        "precompute_seconds": precompute_s,
+        "windows_seconds": windows_s,
         "fit_seconds": result.seconds,
         "epochs": epochs,
         "seconds_per_epoch": result.seconds / epochs,
@@ -98,11 +107,11 @@ def main(argv: list[str] | None = None) -> int:
         "one_step_test_learned": learned,
     }
     print(
-        f"{'transitions':>11s} {'train':>7s} {'load s':>7s} {'precompute s':>12s} "
+        f"{'transitions':>11s} {'train':>7s} {'load s':>7s} {'windows s':>12s} "
         f"{'fit s':>7s} {'epochs':>6s} {'s/epoch':>7s}"
     )
     print(
-        f"{len(transitions):>11d} {len(train):>7d} {load_s:>7.1f} {precompute_s:>12.1f} "
+        f"{len(transitions):>11d} {len(train):>7d} {load_s:>7.1f} {windows_s:>12.1f} "
         f"{result.seconds:>7.1f} {epochs:>6d} {result.seconds / epochs:>7.2f}"
     )
     print(

@@ -108,7 +108,7 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     options = (
         "--scene trifinger --object cube,random-3,random-4 --trajectories 2 --steps 8 "
         "--actions random --horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 "
-        "--splits 2 --loss-horizon 2 --no-progress"
+        "--splits 2 --loss-horizon 2 --ablate --no-progress"
     )
     argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
     assert main([*argv, "--json", str(tmp_path / "headline.json")]) == 0
@@ -126,7 +126,11 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     )
     assert config.calibrate == ("command_gain", "robot_stiffness", "object_metric")
     assert config.loss_horizon == 2 and meta["objects"] == ["cube", "random-3", "random-4"]
-    assert "splits by objects" in capsys.readouterr().out
+    record = read_json(tmp_path / "trifinger_cube_random-3_random-4" / "results.json")
+    assert math.isfinite(record["rollout10_err_calibrated_constant_k"])
+    assert math.isfinite(record["rollout10_err_uncalibrated_learned"])
+    out = capsys.readouterr().out
+    assert "splits by objects" in out and "calibrated constant k" in out
 
 
 def test_an_object_split_needs_three_objects(capsys):

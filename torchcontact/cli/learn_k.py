@@ -22,6 +22,7 @@ splits. Errors are means over the test windows; the combined error is the MPC's
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import functools
 import math
@@ -79,6 +80,12 @@ DEFAULT_CALIBRATE = ("command_gain", "robot_stiffness", "object_metric")
 
 MODELS = ("paper_k", "best_constant_k", "learned")
 LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned": "learned"}
+ABLATIONS = {
+    "calibrated_constant_k": {"stiffness": "constant", "damping": "paper"},
+    "uncalibrated_learned": {"calibrate": ()},
+}
+"""``--ablate``'s extra fits per split: the best constant K with the system factors fitted, and
+the learned K(q), D(q) without them (each otherwise as the learned model)."""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -161,6 +168,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         action="store_true",
         help="also install the first split's model as the scene's shipped default, with its "
         "manifest (torchcontact/assets/models/SCENE.pt and .json)",
+    )
+    add(
+        "--ablate",
+        action="store_true",
+        help=f"also fit and evaluate {tuple(ABLATIONS)} on each split (two more fits)",
     )
     add("--no-progress", action="store_true")
     args = parser.parse_args(argv)
@@ -367,6 +379,11 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
         "best_constant_k": constant_model(best_k, meta),
         "learned": learned,
     }
+    for key, change in ABLATIONS.items() if args.ablate else ():
+        variant = dataclasses.replace(config, **change)
+        model = build_model(variant, meta)
+        models[key] = fit_steps(model, data["train"], data["val"], weights, variant, progress).model
+        models[key] = models[key].cpu()
     evaluation = evaluate_models(models, test, detectors, weights, args)
 
     def improvement(kind: str, statistic: str = "combined") -> float:
@@ -383,7 +400,7 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
         "transitions": {
             name: len(part) for name, part in zip(("train", "val", "test"), parts, strict=True)
         },
-        **{f"rollout10_err_{key}": evaluation[key]["rollout"]["combined"] for key in MODELS},
+        **{f"rollout10_err_{key}": evaluation[key]["rollout"]["combined"] for key in models},
         "improvement_vs_best_constant": improvement("rollout"),
         "improvement_vs_best_constant_median": improvement("rollout", "combined_median"),
         **{
@@ -442,7 +459,8 @@ def run(args: argparse.Namespace) -> dict:
     save_checkpoint(args.results / "model.pt", first["model"], first["config"], transitions.meta)
     write_csv(args.results / "history.csv", first["history"])
     summary = {}
-    for key in AVERAGED:
+    ablated = [f"rollout10_err_{key}" for key in ABLATIONS if args.ablate]
+    for key in (*AVERAGED, *ablated):
         summary[key], summary[f"{key}_sd"] = _mean_sd([split[key] for split in splits])
     meta = transitions.meta
     return {
@@ -512,6 +530,16 @@ def print_table(record: dict, stiffness: str) -> None:
         f"with the recorded robot motion "
         f"{100 * record['improvement_vs_best_constant_robot_recorded']:.1f} %"
     )
+    ablations = [key for key in ABLATIONS if f"rollout10_err_{key}" in record]
+    if ablations:
+        cells = ", ".join(
+            f"{key.replace('_', ' ')} {record[f'rollout10_err_{key}']:.3g}" for key in ablations
+        )
+        print(
+            f"ablations, mean {horizon}-step combined error over splits: {cells} (learned "
+            f"{record['rollout10_err_learned']:.3g}, best constant K "
+            f"{record['rollout10_err_best_constant_k']:.3g})"
+        )
     calibration = splits[0].get("calibration")
     if calibration:
         factors = ", ".join(f"{name} {_fmt(values)}" for name, values in calibration.items())
