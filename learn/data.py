@@ -558,15 +558,15 @@ def load(directory: str | Path, trajectories: int | None = None) -> Transitions:
 
 
 SHARED = ("scene", "h", "gamma", "facets", "paper_stiffness", "joints", "pose_weights")
-SHARED += ("nq", "nv", "nu", "slots", "control_dt")
+SHARED += ("nq", "nv", "nu", "control_dt")
 """Manifest keys every dataset of a multi-object set must agree on."""
 
 
 def load_objects(directories, trajectories: int | None = None) -> Transitions:
     """The datasets in ``directories`` (one object each, one scene) as one
     :class:`Transitions`: ``object`` indexes ``meta["objects"]`` in the order given, each
-    object keeps its own system (``meta["systems"]``) and trajectory ids are renumbered to be
-    unique. ``trajectories``: read trajectories ``0 … trajectories−1`` of each.
+    object keeps its own system (``meta["systems"]``), trajectory ids are renumbered to be
+    unique and the contacts are padded to the most slots of any (``meta["slots"]``). ``trajectories``: read trajectories ``0 … trajectories−1`` of each.
 
     Raises :class:`DataFormatError` naming a dataset whose scene, model or sizes differ from
     the first's, or an object given twice."""
@@ -588,9 +588,11 @@ def load_objects(directories, trajectories: int | None = None) -> Transitions:
     if len(set(objects)) != len(objects):
         raise DataFormatError(f"each object must come once, got {objects}")
     span = 1 + max(int(part.trajectory.max()) for part in parts)
+    slots = max(part.meta["slots"] for part in parts)  # objects of more parts have more
     meta = {
         **first,
         "object": None,
+        "slots": slots,
         "objects": objects,
         "systems": [part.meta["system"] for part in parts],
     }
@@ -598,7 +600,7 @@ def load_objects(directories, trajectories: int | None = None) -> Transitions:
         q=torch.cat([part.q for part in parts]),
         u=torch.cat([part.u for part in parts]),
         q_next=torch.cat([part.q_next for part in parts]),
-        contacts=Contacts.cat([part.contacts for part in parts]),
+        contacts=Contacts.cat([part.contacts.padded(slots) for part in parts]),
         trajectory=torch.cat([i * span + part.trajectory for i, part in enumerate(parts)]),
         step=torch.cat([part.step for part in parts]),
         meta=meta,

@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 
+from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import main
 from torchcontact.mpc.trials import TrialRecord, trial_model
@@ -124,7 +125,7 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     model, config, meta = load_checkpoint(
         tmp_path / "trifinger_cube_random-3_random-4" / "model.pt"
     )
-    assert config.calibrate == ("command_gain", "robot_stiffness", "object_metric")
+    assert config.calibrate == PARTS
     assert config.loss_horizon == 2 and meta["objects"] == ["cube", "random-3", "random-4"]
     record = read_json(tmp_path / "trifinger_cube_random-3_random-4" / "results.json")
     assert math.isfinite(record["rollout10_err_calibrated_constant_k"])

@@ -241,6 +241,8 @@ def test_objects_join_with_their_own_systems_and_split_whole(dataset, tmp_path):
     joined = load_objects([dataset, other, third])
     assert joined.meta["objects"] == ["cube", "random-5", "stick"]
     assert len(joined.meta["systems"]) == 3 and len(joined) == 54
+    slots = max(load(d).meta["slots"] for d in (dataset, other, third))
+    assert joined.meta["slots"] == slots == joined.contacts.slots
     assert len(joined.trajectory_ids()) == 9
     for seed in range(4):
         parts = joined.split_objects(seed=seed)

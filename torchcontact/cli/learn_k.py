@@ -75,8 +75,8 @@ DEFAULT_OBJECTS = {"trifinger": "all,random:0-29", "allegro": "all,random:0-29"}
 """Objects by scene (else ``all``, or ``cube`` for box pushing): the built-in ones and 30
 generated tuning objects (seeds below 1000, so the reported generated objects stay unseen)."""
 
-DEFAULT_CALIBRATE = ("command_gain", "robot_stiffness", "object_metric")
-"""The system factors fitted by default (``friction`` is optional)."""
+DEFAULT_CALIBRATE = PARTS
+"""The system factors fitted by default: all four (measured best with μ, docs/experiments.md)."""
 
 MODELS = ("paper_k", "best_constant_k", "learned")
 LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned": "learned"}
