@@ -566,7 +566,8 @@ def load_objects(directories, trajectories: int | None = None) -> Transitions:
     """The datasets in ``directories`` (one object each, one scene) as one
     :class:`Transitions`: ``object`` indexes ``meta["objects"]`` in the order given, each
     object keeps its own system (``meta["systems"]``), trajectory ids are renumbered to be
-    unique and the contacts are padded to the most slots of any (``meta["slots"]``). ``trajectories``: read trajectories ``0 … trajectories−1`` of each.
+    unique and the contacts are padded to the most slots of any (``meta["slots"]``).
+    ``trajectories``: read trajectories ``0 … trajectories−1`` of each.
 
     Raises :class:`DataFormatError` naming a dataset whose scene, model or sizes differ from
     the first's, or an object given twice."""
