@@ -8,6 +8,7 @@ import torch
 from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import main
+from torchcontact.cli.learn_k import parse_args
 from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
 
@@ -132,6 +133,13 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     assert math.isfinite(record["rollout10_err_uncalibrated_learned"])
     out = capsys.readouterr().out
     assert "splits by objects" in out and "calibrated constant k" in out
+
+
+def test_objects_are_listed_once_in_order():
+    args = parse_args(["--scene", "fingertips", "--object", "cube,stick,cube,bunny"])
+    assert args.objects == ["cube", "stick", "bunny"] and args.split == "objects"
+    args = parse_args(["--scene", "allegro", "--object", "all,random:3-4"])
+    assert len(args.objects) == 19 and args.objects[-2:] == ["random-3", "random-4"]
 
 
 def test_an_object_split_needs_three_objects(capsys):
