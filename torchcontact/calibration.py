@@ -95,12 +95,11 @@ class SystemCalibration(nn.Module):
             gain = self.factor("command_gain").to(metric)
             if system.command_gain is not None:
                 gain = gain * system.command_gain
-            order = torch.argsort(system._from_blocks)[: system.n_object]
             return QuasiDynamic(
                 metric,
                 stiffness,
                 system.object_force,
-                object_dofs=order.tolist(),
+                object_dofs=system.object_dofs,
                 command_gain=gain,
             )
 

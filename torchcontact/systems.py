@@ -97,6 +97,11 @@ class QuasiDynamic(nn.Module):
     def nv(self) -> int:
         return self.n_object + self.n_robot
 
+    @property
+    def object_dofs(self) -> list[int]:
+        """The object's velocity indices in v."""
+        return torch.argsort(self._from_blocks)[: self.n_object].tolist()
+
     def metric(self) -> torch.Tensor:
         """``Q: (nv,)`` the diagonal metric."""
         return torch.cat([self.object_metric, self.robot_stiffness])[self._from_blocks]
