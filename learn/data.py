@@ -74,13 +74,19 @@ def trajectory_file(index: int) -> str:
     return f"trajectory_{index:05d}.npz"
 
 
-def system_header(system: QuasiDynamic) -> dict:
-    """The affine system's manifest entry: ``Q (nv,)``, ``b0 (nv,)``, ``B (nv, nu)`` as lists,
+def affine_system(system: QuasiDynamic) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``Q (nv,)``, ``b0 (nv,)`` and ``B (nv, nu)`` of ``system`` in float64:
     ``b(u) = b0 + B·u``."""
-    n_u = system.n_robot
-    Q, b0 = system(torch.zeros(n_u, dtype=torch.float64))
-    _, b_unit = system(torch.eye(n_u, dtype=torch.float64))
-    return {"Q": Q.tolist(), "b0": b0.tolist(), "B": (b_unit - b0).T.tolist()}
+    u = torch.eye(system.n_robot, dtype=torch.float64)
+    Q, b0 = system(torch.zeros_like(u[0]))
+    _, b_unit = system(u)
+    return Q, b0, (b_unit - b0).T
+
+
+def system_header(system: QuasiDynamic) -> dict:
+    """The affine system's manifest entry: :func:`affine_system` as lists."""
+    Q, b0, B = affine_system(system)
+    return {"Q": Q.tolist(), "b0": b0.tolist(), "B": B.tolist()}
 
 
 def scene_header(scene: Scene | BoxPushingScene) -> dict:

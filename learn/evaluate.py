@@ -22,6 +22,7 @@ from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import Transitions
 from torchcontact.learn.fit import (
     StepData,
+    model_terms,
     object_indices,
     pose_errors,
     predict_poses,
@@ -114,10 +115,7 @@ def rollout_error(
             for t in range(horizon):
                 contacts = detector(q).to(torch.float64)
                 u = part.u[windows[:, t]]
-                if model.calibration is None:
-                    Q, b = Q0, b0 + u @ B.T
-                else:
-                    Q, b = model.calibration.terms(Q0, b0, B, u, v_index.flatten())
+                Q, b = model_terms(model, Q0, b0, B, u, v_index.flatten())
                 v = model(Q, b, contacts, meta["h"], q=q)
                 q = integrate(q, v, meta["h"], layout)
                 if robot == "recorded":

@@ -26,7 +26,7 @@ from torchcontact.checkpoint import FitConfig
 from torchcontact.contacts import Contacts
 from torchcontact.environments.costs import position_cost
 from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
-from torchcontact.learn.data import Transitions
+from torchcontact.learn.data import Transitions, affine_system
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_error
 from torchcontact.systems import QuasiDynamic
@@ -54,14 +54,6 @@ def object_indices(joints: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
     if not q_index:
         raise ValueError(f"joints must include a free joint (the object), got {joints}")
     return torch.tensor(q_index), torch.tensor(v_index)
-
-
-def affine_system(system: QuasiDynamic) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``Q (nv,)``, ``b0 (nv,)`` and ``B (nv, nu)`` of ``system``: ``b(u) = b0 + B·u``."""
-    u = torch.eye(system.n_robot, dtype=torch.float64)
-    Q, b0 = system(torch.zeros_like(u[0]))
-    _, b_unit = system(u)
-    return Q, b0, (b_unit - b0).T
 
 
 @dataclass
@@ -114,7 +106,7 @@ class StepData:
         meta = transitions.meta
         windows = transitions.windows(horizon, stride)
         first = windows[:, 0]
-        systems = meta.get("systems", [meta["system"]])
+        systems = meta["systems"]
         metric = torch.tensor([s["Q"] for s in systems], dtype=torch.float64)
         bias = torch.tensor([s["b0"] for s in systems], dtype=torch.float64)
         objects = transitions.object[first]
@@ -159,7 +151,7 @@ class StepData:
                 raise ValueError(f"{name} must have {n} rows like q, got {tuple(value.shape)}")
         if contacts.phi.shape[0] != n:
             raise ValueError(f"contacts must have {n} rows like q, got {contacts.phi.shape[0]}")
-        Q, b0, B = affine_system(system.to(torch.float64))
+        Q, b0, B = affine_system(system)  # float64 whatever the system's dtype
         rows = (q, contacts, u[:, None], q_next[:, None], Q.expand(n, -1), b0.expand(n, -1), B)
         return cls._build(*rows, float(h), joints, dtype)
 
@@ -224,13 +216,21 @@ class StepData:
         return StepData(contacts=self.contacts.to(device), h=self.h, **moved)
 
 
-def step_terms(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
-    """``Q (N, 1, nv)`` and ``b (N, H, nv)`` of the windows, through the model's calibration
-    when it has one (differentiable in its factors)."""
-    metric, bias = data.metric[:, None], data.bias[:, None]
+def model_terms(
+    model: ComplementarityFree, Q: torch.Tensor, b0: torch.Tensor, B: torch.Tensor, u, object_rows
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Q`` and ``b = b0 + B·u`` of an affine system (``Q, b0 (..., nv)``, ``B (nv, nu)``,
+    ``u (..., nu)``), through the model's calibration when it has one (differentiable in its
+    factors; ``object_rows``: the objects' indices in v)."""
     if model.calibration is None:
-        return metric, bias + data.u @ data.B.mT
-    return model.calibration.terms(metric, bias, data.B, data.u, data.object_rows)
+        return Q, b0 + u @ B.mT
+    return model.calibration.terms(Q, b0, B, u, object_rows)
+
+
+def step_terms(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Q (N, 1, nv)`` and ``b (N, H, nv)`` of the windows (:func:`model_terms`)."""
+    metric, bias = data.metric[:, None], data.bias[:, None]
+    return model_terms(model, metric, bias, data.B, data.u, data.object_rows)
 
 
 def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:

@@ -485,7 +485,7 @@ def _run_job(job: _Job) -> TrialRecord:
     key = _setup_key(job.config)
     if _CACHE.get("key") != key:
         if "mpc" in _CACHE:
-            _CACHE["mpc"].wait_for_compile()  # its thread must not outlive the reset below
+            _CACHE["mpc"].wait_for_compile()  # its child must finish before the reset below
         _CACHE.clear()
         # A new object brings new tensor shapes: drop the previous compiled graphs, or dynamo
         # reaches its recompile limit after a few objects and silently runs eager from then on.

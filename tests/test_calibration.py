@@ -10,10 +10,9 @@ from torchcontact.checkpoint import FitConfig, build_model, load_checkpoint, sav
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout, integrate
-from torchcontact.learn.data import collect, load
+from torchcontact.learn.data import affine_system, collect, load
 from torchcontact.learn.fit import (
     StepData,
-    affine_system,
     fit_steps,
     object_indices,
     predict_poses,

@@ -392,8 +392,8 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
     evaluation = evaluate_models(models, test, detectors, weights, args)
 
     def improvement(kind: str, statistic: str = "combined") -> float:
-        learned, best = (evaluation[key][kind][statistic] for key in ("learned", "best_constant_k"))
-        return 1.0 - learned / best
+        mine, best = (evaluation[key][kind][statistic] for key in ("learned", "best_constant_k"))
+        return 1.0 - mine / best
 
     names = meta["objects"]
     return {
