@@ -116,7 +116,7 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
-        self._differentiate = self._compiled_differentiate()
+        self._differentiate, self._objective = self._compiled()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
         background = compile and background_compile and hasattr(self.planner, "eager")
         self._background = BackgroundCompile() if background else None
@@ -129,7 +129,7 @@ class ContactImplicitMPC:
         env: Environment,
         plant: Plant,
         model: ContactModel | str | None = None,
-        planner: Planner | str = "lbfgs",
+        planner: Planner | str | None = None,
         settings: MPCSettings | str | None = None,
         cost: Cost | str | None = None,
         background_compile: bool = False,
@@ -144,7 +144,7 @@ class ContactImplicitMPC:
         :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
         calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
-        built with the settings' iterations, memory and compilation; ``settings``: solver
+        built with the settings' iterations, memory and compilation (None: ``env.planner``); ``settings``: solver
         settings or a preset name (default the environment's default preset);
         ``background_compile``: as in the constructor.
         """
@@ -154,6 +154,8 @@ class ContactImplicitMPC:
             model = contact_model("paper", stiffness=env.default_stiffness)
         elif isinstance(model, str):
             model = contact_model(model)
+        if planner is None:
+            planner = env.planner
         if isinstance(planner, str):
             options = {"max_iter": settings.max_iter, "memory": settings.memory}
             planner = planners.planner(planner, compile=settings.compile, **options)
@@ -191,18 +193,22 @@ class ContactImplicitMPC:
     def __getstate__(self) -> dict:
         """Pickled (for a background compile) without its compiled callables and child."""
         state = self.__dict__.copy()
-        state.update(_differentiate=None, _background=None)
+        state.update(_differentiate=None, _objective=None, _background=None)
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._differentiate = self._compiled_differentiate()
+        self._differentiate, self._objective = self._compiled()
 
-    def _compiled_differentiate(self) -> Callable:
-        """:meth:`differentiate`, through ``torch.compile`` when the MPC compiles."""
+    def _compiled(self) -> tuple[Callable, Callable]:
+        """:meth:`differentiate` and :meth:`objective`, through ``torch.compile`` when the MPC
+        compiles (the objective alone serves sampling planners, which need no gradient)."""
         if not self.compiled:
-            return self.differentiate
-        return torch.compile(self.differentiate, dynamic=False)
+            return self.differentiate, self.objective
+        return (
+            torch.compile(self.differentiate, dynamic=False),
+            torch.compile(self.objective, dynamic=False),
+        )
 
     @property
     def compiling(self) -> bool:
@@ -259,6 +265,15 @@ class ContactImplicitMPC:
         differentiate = self._differentiate if compiled else self.differentiate
         return differentiate(controls, q0, frozen, target_p, target_quat)
 
+    def value(
+        self, controls, q0, frozen, target_p, target_quat, compiled: bool = True
+    ) -> torch.Tensor:
+        """Cost ``(B,)`` of ``controls (B, T, n_u)`` without its gradient (for sampling), the
+        frozen step linearized as in :meth:`value_and_grad`."""
+        frozen = frozen.linearized(*self.system(controls))
+        objective = self._objective if compiled else self.objective
+        return objective(controls, q0, frozen, target_p, target_quat)
+
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
 
@@ -285,6 +300,14 @@ class ContactImplicitMPC:
         """:meth:`_flat_value_and_grad` never compiled; a bound method of the MPC, as planners
         such as the IPOPT baseline expect of an objective."""
         return self._flat_value_and_grad(x, *args, compiled=False)
+
+    def _flat_value(self, x: torch.Tensor, *args, compiled: bool = True) -> torch.Tensor:
+        """:meth:`value` of flat controls ``x (N, T·n_u)``."""
+        return self.value(x.unflatten(-1, (self.horizon, -1)), *args, compiled=compiled)
+
+    def _flat_eager_value(self, x: torch.Tensor, *args) -> torch.Tensor:
+        """:meth:`_flat_value` never compiled."""
+        return self._flat_value(x, *args, compiled=False)
 
     def _flat_differentiate(self, x: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`differentiate` of flat controls ``x (N, T·n_u)``, for a traced planner."""
@@ -325,10 +348,10 @@ class ContactImplicitMPC:
             frozen = self.freeze(q, contacts, compiled)
         if compiled:
             traceable = self._flat_differentiate if frozen.traceable else None
-            objective = Objective(self._flat_value_and_grad, traceable)
+            objective = Objective(self._flat_value_and_grad, traceable, self._flat_value)
             planner = self.planner
         else:
-            objective = Objective(self._flat_eager_value_and_grad)
+            objective = Objective(self._flat_eager_value_and_grad, value=self._flat_eager_value)
             planner = self.planner if self._eager_planner is None else self._eager_planner
         with validate_args(False):
             return planner.plan(

@@ -90,9 +90,29 @@ def build_parser() -> argparse.ArgumentParser:
         help="the environment's solver settings from the measured speed-accuracy front "
         "(README 'Choosing settings'); the options below override single values",
     )
-    parser.add_argument("--planner", choices=sorted(PLANNERS), default="lbfgs")
+    parser.add_argument(
+        "--planner",
+        choices=sorted(PLANNERS),
+        default=None,
+        help="lbfgs (the paper's), multistart (L-BFGS from the warm start and from zero) or "
+        "hybrid (sampling choosing L-BFGS's second start); default the environment's",
+    )
     parser.add_argument(
         "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
+    )
+    parser.add_argument(
+        "--support",
+        choices=("on", "off"),
+        default=None,
+        help="(allegro) the cost's term keeping the object's planned centre over the palm; "
+        "default the environment's",
+    )
+    parser.add_argument(
+        "--support-margin",
+        type=float,
+        default=None,
+        help="(allegro) how far inside the palm's edges [m] the support term keeps the "
+        "object's centre; default the environment's",
     )
     parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
@@ -208,6 +228,12 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error("--robot is required by, and only for, the custom environment")
     if args.tips is not None and not custom:
         parser.error("--tips is for the custom environment")
+    if (args.support is not None or args.support_margin is not None) and args.cost is not None:
+        parser.error("--support is a term of the environment's cost: drop --cost")
+    if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
+        parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
+    if args.support == "off" and args.support_margin is not None:
+        parser.error("--support-margin is for the support term: drop --support off")
     if custom and not args.robot.is_file():
         parser.error(f"--robot must be an existing MJCF file, got {str(args.robot)!r}")
 
@@ -217,6 +243,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     _check_options(parser, args)
     args.tips = None if args.tips is None else tuple(args.tips.split(","))
+    args.support = None if args.support is None else args.support == "on"
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
         env = environment(args.env, args.robot, args.tips)
@@ -256,6 +283,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.stiffness = env.stiffness
     elif args.stiffness is None:
         args.stiffness = env.default_stiffness
+    args.planner = args.planner or env.planner
     args.env_description = env
     _load_inputs(args, env)
     return args

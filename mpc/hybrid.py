@@ -7,8 +7,9 @@ gradient points. The closed-form model evaluates many plans in one batched call,
 1. **Sampling** (cross-entropy method, seeded): ``samples`` plans around the warm start, spread
    ``spread`` × the box's half-width; the ``elites`` lowest-cost refit the mean and spread,
    ``rounds`` times. The warm start itself is always one of the samples.
-2. **Multi-start L-BFGS**: box-projected L-BFGS from the warm start, from zero and from the
-   ``starts − 2`` best samples, all in one batched solve (rows independent).
+   The first round's samples include the warm start and zero (no motion).
+2. **Multi-start L-BFGS**: box-projected L-BFGS from the warm start and from the ``starts − 1``
+   best other samples, all in one batched solve (rows independent).
 3. The plan of lowest model cost is returned. Since the warm start's row is plain L-BFGS from
    the warm start, the result never costs more than plain L-BFGS's (up to rounding).
 
@@ -17,6 +18,8 @@ MPC's does; each problem of a batch ``x0 (B, n)`` is planned on its own.
 """
 
 from __future__ import annotations
+
+import functools
 
 import torch
 
@@ -29,9 +32,9 @@ class Hybrid:
     Args:
         max_iter, memory, compile: of the L-BFGS stage (:class:`LBFGS`).
         samples: plans per sampling round (≥ 2); rounds: sampling rounds (0: no sampling, the
-            starts are the warm start, zero and nothing else); elites: samples that refit the
+            starts are the warm start and zero); elites: samples that refit the
             distribution (1 ≤ elites ≤ samples); starts: L-BFGS starts (≥ 1: the warm start,
-            then zero, then the best samples); spread: the first round's standard deviation as
+            then the best other samples; without sampling, zero); spread: the first round's standard deviation as
             a fraction of the box's half-width (> 0); seed: of the sampling, the same every
             call, so a plan depends only on its inputs.
     """
@@ -44,7 +47,7 @@ class Hybrid:
         samples: int = 32,
         rounds: int = 2,
         elites: int = 4,
-        starts: int = 4,
+        starts: int = 2,
         spread: float = 0.5,
         seed: int = 0,
     ):
@@ -73,11 +76,12 @@ class Hybrid:
         lower, upper = (bound.expand_as(x0) for bound in box)
         x0 = torch.clamp(x0, lower, upper)
         problems, n = x0.shape
-        candidates, evaluations = [x0, torch.clamp(torch.zeros_like(x0), lower, upper)], 0
-        if self.rounds and self.starts > 2:
+        if self.rounds:
             best, evaluations = self._sample(objective, x0, lower, upper, args)
-            candidates.append(best.transpose(0, 1).reshape(-1, n))  # (S·B, n) start-major
-        starts = torch.cat(candidates)[: self.starts * problems]  # row s·B + b: start s of b
+            others = best.transpose(0, 1).reshape(-1, n)  # (S·B, n) start-major
+        else:
+            others, evaluations = torch.clamp(torch.zeros_like(x0), lower, upper), 0
+        starts = torch.cat([x0, others])[: self.starts * problems]  # row s·B + b: start s of b
         count = starts.shape[0] // problems
         bounds = (lower.repeat(count, 1), upper.repeat(count, 1))
         result = self.polish.plan(objective, starts, bounds, args)
@@ -89,29 +93,32 @@ class Hybrid:
         return PlannerResult(x, f[choice, index], result.iterations, total)
 
     def _sample(self, objective: Objective, x0, lower, upper, args):
-        """The ``starts − 2`` lowest-cost plans ``(B, starts − 2, n)`` of the sampling rounds,
-        and the number of objective evaluations."""
+        """The ``starts − 1`` lowest-cost plans ``(B, starts − 1, n)`` of the sampling rounds
+        (the warm start left out: it is a start already), and the number of objective
+        evaluations. The first round's samples include the warm start and zero."""
         problems, n = x0.shape
         generator = torch.Generator(device=x0.device).manual_seed(self.seed)
         mean, std = x0, self.spread * (upper - lower) / 2
         kept_x = x0.new_empty(problems, 0, n)
         kept_f = x0.new_empty(problems, 0)
-        for _ in range(self.rounds):
+        for round in range(self.rounds):
+            # one draw shared by the problems: each is planned as it would be alone
             noise = torch.randn(
-                (problems, self.samples, n), generator=generator, dtype=x0.dtype, device=x0.device
+                (1, self.samples, n), generator=generator, dtype=x0.dtype, device=x0.device
             )
-            noise[:, 0] = 0  # the mean itself: round 1 keeps the warm start among the samples
             x = torch.clamp(mean[:, None] + std[:, None] * noise, lower[:, None], upper[:, None])
-            f, _ = objective.value_and_grad(x.reshape(-1, n), *args)
-            f = f.view(problems, self.samples)
+            if round == 0:  # the warm start and zero (no motion) compete with the samples
+                x[:, 0], x[:, 1] = x0, torch.clamp(torch.zeros_like(x0), lower, upper)
+            f = objective.values(x.reshape(-1, n), *args).view(problems, self.samples)
             order = f.argsort(dim=1)[:, : self.elites]
             elites = torch.gather(x, 1, order[..., None].expand(-1, -1, n))
             mean, std = elites.mean(1), elites.std(1, unbiased=False)
             kept_x, kept_f = torch.cat([kept_x, x], 1), torch.cat([kept_f, f], 1)
         kept_f[:, 0] = torch.inf  # the warm start: a start already
-        best = kept_f.argsort(dim=1)[:, : self.starts - 2]
+        best = kept_f.argsort(dim=1)[:, : self.starts - 1]
         chosen = torch.gather(kept_x, 1, best[..., None].expand(-1, -1, n))
         return chosen, self.rounds * self.samples * problems
 
-
 register_planner("hybrid", Hybrid)
+register_planner("multistart", functools.partial(Hybrid, rounds=0, starts=2))
+"""The ablation of the sampling: L-BFGS from the warm start and from zero, the better kept."""

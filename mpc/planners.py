@@ -28,10 +28,19 @@ class Objective:
         traceable: the same function in a form ``torch.compile`` may trace into a planner's
             own compiled graph (no graph breaks, the same function object from call to call),
             or None where there is none.
+        value: ``(x (N, n), *args) -> f (N,)`` alone, for planners that need no gradient
+            (sampling), or None: :meth:`values` then drops the gradient of ``value_and_grad``.
     """
 
     value_and_grad: Callable[..., tuple[torch.Tensor, torch.Tensor]]
     traceable: Callable[..., tuple[torch.Tensor, torch.Tensor]] | None = None
+    value: Callable[..., torch.Tensor] | None = None
+
+    def values(self, x: torch.Tensor, *args) -> torch.Tensor:
+        """``f (N,)`` at ``x (N, n)``, without computing a gradient where :attr:`value` is set."""
+        if self.value is not None:
+            return self.value(x, *args)
+        return self.value_and_grad(x, *args)[0]
 
 
 class PlannerResult(NamedTuple):

@@ -80,6 +80,8 @@ LEGACY_DEFAULTS = {
     "object_scale": None,
     "object_mass": None,
     "object_friction": None,
+    "support": None,
+    "support_margin": None,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -163,6 +165,9 @@ class TrialConfig:
         cost: a cost's registered name, None for the environment's.
         object_size, object_scale, object_mass, object_friction: the user's settings of the
             object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's.
+        support: the cost's support term (a hand holding its object on a palm) on or off;
+            None for the environment's default; support_margin: its margin [m], None for the
+            environment's.
     """
 
     env: str
@@ -190,6 +195,8 @@ class TrialConfig:
     object_scale: float | None = None
     object_mass: float | None = None
     object_friction: float | None = None
+    support: bool | None = None
+    support_margin: float | None = None
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -295,8 +302,8 @@ def trial_configs(
 ) -> list[TrialConfig]:
     """Configurations of ``seeds`` on each (task, object) of ``pairs`` in environment ``env``
     (registered name): solver ``settings`` (default the environment's default preset),
-    ``max_steps`` (default its criterion's), and the environment's shipped model (or, where it
-    ships none, the paper model at its default K) unless ``options`` (other
+    ``max_steps`` (default its criterion's), the environment's planner and its shipped model
+    (or, where it ships none, the paper model at its default K) unless ``options`` (other
     :class:`TrialConfig` fields) say otherwise."""
     description = environment(env, options.get("robot"), options.get("tips"))
     settings = description.preset() if settings is None else settings
@@ -308,6 +315,7 @@ def trial_configs(
         else:
             options["stiffness"] = description.default_stiffness
     options.setdefault("stiffness", None)
+    options.setdefault("planner", description.planner)
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -367,8 +375,11 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
+    cost = config.cost
+    if config.support is not None or config.support_margin is not None:
+        cost = env.cost(plant, support=config.support, margin=config.support_margin)
     mpc = ContactImplicitMPC.from_env(
-        env, plant, model, config.planner, config.settings, config.cost, background_compile=True
+        env, plant, model, config.planner, config.settings, cost, background_compile=True
     )
     return env, plant, mpc
 

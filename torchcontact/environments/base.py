@@ -87,6 +87,8 @@ class Environment:
         criterion: the success criterion of its tasks.
         stiffness: the paper's K (``learn-k`` collects its data with it).
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
+        planner: the planner it plans with unless told otherwise (a name of
+            :data:`~torchcontact.mpc.planners.PLANNERS`), the measured best.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -98,6 +100,7 @@ class Environment:
     criterion: tasks.SuccessCriterion
     stiffness: float
     default_stiffness: float
+    planner: str = "lbfgs"
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -128,8 +131,13 @@ class Environment:
         """|u| per control element and step (rad or m)."""
         raise NotImplementedError
 
-    def cost(self, plant: Plant) -> Cost:
-        """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`)."""
+    def cost(
+        self, plant: Plant, support: bool | None = None, margin: float | None = None
+    ) -> Cost:
+        """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
+        ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
+        holds it, on or off (None: the environment's default; environments whose objects rest
+        on the ground refuse on)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

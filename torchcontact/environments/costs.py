@@ -46,6 +46,14 @@ def height_bound_cost(tips: torch.Tensor, low: float, high: float) -> torch.Tens
     return ((low - z).clamp_min(0).square() + (z - high).clamp_min(0).square()).sum(-1)
 
 
+def support_cost(p: torch.Tensor, region: tuple[float, float, float, float]) -> torch.Tensor:
+    """``dist²`` [m²] of positions ``p (..., 3)``'s x, y outside the rectangle ``region =
+    (x_min, y_min, x_max, y_max)`` [m], shape ``(...)``; zero inside."""
+    xy = p[..., :2]
+    lower, upper = xy.new_tensor(region[:2]), xy.new_tensor(region[2:])
+    return ((lower - xy).clamp_min(0).square() + (xy - upper).clamp_min(0).square()).sum(-1)
+
+
 @dataclass(frozen=True)
 class ManipulationCost:
     """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights.
@@ -62,6 +70,12 @@ class ManipulationCost:
     and stick): here a quadratic penalty of weight ``tip_height_weight`` [1/m²] on the excess,
     since the L-BFGS box holds the controls only. The model has no tip–ground contact, so
     without it a plan may push a tip through the floor to lift the object from below.
+
+    ``support = (x_min, y_min, x_max, y_max)`` [m] is the region over which the object's
+    centre is held up (a palm's footprint shrunk by a margin): planned positions p₁…p_T
+    outside it cost ``support_weight`` [1/m²] × their squared distance to it. The frozen
+    contact model sees the support as an endless plane, so without it nothing in the plan
+    tells an object pushed over the palm's edge from one turned on it.
     """
 
     contact: float = 1.0
@@ -73,6 +87,8 @@ class ManipulationCost:
     tip_height: tuple[float, float] | None = None
     tip_height_weight: float = 1e5
     tilt: float = 0.0
+    support: tuple[float, float, float, float] | None = None
+    support_weight: float = 1e5
 
     def __call__(
         self,
@@ -108,6 +124,9 @@ class ManipulationCost:
         if self.tip_height is not None:
             bound = height_bound_cost(tips[..., 1:, :, :], *self.tip_height).sum(-1)
             total = total + self.tip_height_weight * bound
+        if self.support is not None:
+            outside = support_cost(positions[..., 1:, :], self.support).sum(-1)
+            total = total + self.support_weight * outside
         return total
 
 

@@ -81,7 +81,11 @@ class FingertipsEnvironment(Environment):
     def control_bound(self, plant: FingertipsEnv) -> float:
         return CONTROL_BOUND
 
-    def cost(self, plant: FingertipsEnv) -> ManipulationCost:
+    def cost(
+        self, plant: FingertipsEnv, support: bool | None = None, margin: float | None = None
+    ) -> ManipulationCost:
+        if support or margin is not None:
+            raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):

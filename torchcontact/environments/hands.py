@@ -51,6 +51,10 @@ class HandModel:
         object_mass: the mass [kg] the model gives an object whose mass the user did not set
             (the paper's hand models plan every object at 10 g, its 100 g cube and stick
             included); None: the plant's.
+        support_margin: with a plant that holds its object on a body (the Allegro's palm),
+            how far [m] inside that body's footprint the cost keeps the object's planned
+            centre (:attr:`ManipulationCost.support`); None: no such term.
+        support_weight: that term's weight [1/m²].
     """
 
     robot_stiffness: float
@@ -61,6 +65,8 @@ class HandModel:
     h: float = 0.1
     tilt: float = 0.0
     object_mass: float | None = None
+    support_margin: float | None = None
+    support_weight: float = 1e5
 
 
 Sampler = Callable[[HandEnv, str, int], tuple[np.ndarray, np.ndarray]]
@@ -76,6 +82,7 @@ class HandEnvironment(Environment):
         task: the task's name; criterion: its success criterion; sample: its sampler.
         presets: solver settings by preset name.
         objects: the environment's built-in objects.
+        planner: the default planner's name.
     """
 
     def __init__(
@@ -87,8 +94,9 @@ class HandEnvironment(Environment):
         sample: Sampler,
         presets: Mapping[str, MPCSettings],
         objects: tuple[str, ...] = (),
+        planner: str = "lbfgs",
     ):
-        self.hand, self.model, self._sample = hand, model, sample
+        self.hand, self.model, self._sample, self.planner = hand, model, sample, planner
         self.name = hand.name
         self.pairs = tuple((task, obj) for obj in objects) or ((task, "cube"),)
         self.criterion = criterion
@@ -118,10 +126,31 @@ class HandEnvironment(Environment):
     def control_bound(self, plant: HandEnv) -> float:
         return self.model.control_bound
 
-    def cost(self, plant: HandEnv) -> Cost:
+    def cost(
+        self, plant: HandEnv, support: bool | None = None, margin: float | None = None
+    ) -> Cost:
+        """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
+        where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
+        needs a plant that holds its object on a body); ``margin`` [m]: the term's, instead of
+        the model's."""
+        cost = self.model.cost
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
-            return dataclasses.replace(self.model.cost, tilt=self.model.tilt)
-        return self.model.cost
+            cost = dataclasses.replace(cost, tilt=self.model.tilt)
+        margin = self.model.support_margin if margin is None else margin
+        if support is None:
+            support = margin is not None and plant.support_footprint is not None
+        if not support:
+            return cost
+        if plant.support_footprint is None:
+            raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
+        x_min, y_min, x_max, y_max = plant.support_footprint
+        margin = margin or 0.0
+        region = (x_min + margin, y_min + margin, x_max - margin, y_max - margin)
+        if not (margin >= 0 and region[0] < region[2] and region[1] < region[3]):
+            raise ValueError(
+                f"margin must be in [0, half the support's narrower side), got {margin!r}"
+            )
+        return dataclasses.replace(cost, support=region, support_weight=self.model.support_weight)
 
     def sample(self, plant: HandEnv, task: str, seed: int):
         return self._sample(plant, task, seed)

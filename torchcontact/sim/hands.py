@@ -236,6 +236,26 @@ CONTACTS_PER_PAIR = 4
 ``per_pair``): a decomposed cup on the ground keeps 4 of its ~36 contacts."""
 
 
+def support_footprint(
+    model: mujoco.MjModel, data: mujoco.MjData, body: int
+) -> tuple[float, float, float, float]:
+    """``(x_min, y_min, x_max, y_max)`` [m]: the world x, y bounds of ``body``'s colliding
+    geoms (their bounding boxes' corners at ``data``'s kinematics), the region that body can
+    hold an object over."""
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+    corners = []
+    for geom in np.flatnonzero(model.geom_bodyid == body):
+        if not (model.geom_contype[geom] or model.geom_conaffinity[geom]):
+            continue  # visual only
+        centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
+        rotation = data.geom_xmat[geom].reshape(3, 3)
+        corners.append(data.geom_xpos[geom] + (centre + signs * half) @ rotation.T)
+    if not corners:
+        raise ValueError(f"body {model.body(body).name!r} has no colliding geom to support with")
+    xy = np.concatenate(corners)[:, :2]
+    return (*map(float, xy.min(0)), *map(float, xy.max(0)))
+
+
 def scene_contact_slots(model: mujoco.MjModel, resting_qpos: np.ndarray, n_tips: int) -> int:
     """Slots a scene needs: the object's contacts when it rests at ``resting_qpos (nq,)``,
     within 1 mm and at most :data:`CONTACTS_PER_PAIR` per body pair, at least 4, plus
@@ -268,6 +288,10 @@ class HandEnv(Plant):
         collision: how the object collides (``"auto"``, ``"hull"``, ``"parts"``), see
             :func:`~torchcontact.shapes.make_object` and
             :func:`~torchcontact.objects.resolve`.
+
+    What holds the object: ``support_centre (2,)`` and ``support_height`` [m], the support
+    site's (or the ground's), and ``support_footprint``, the supporting body's x, y bounds
+    (:func:`support_footprint`), None on the ground.
     """
 
     def __init__(
@@ -324,11 +348,14 @@ class HandEnv(Plant):
         self._joint_dofs = np.arange(6, self.model.nv)
         self.initial_joints = np.array(hand.initial_joints, dtype=float)
         mujoco.mj_kinematics(self.model, self.data)
-        support = (
-            np.array([0.0, 0.0, hand.ground_height])
-            if hand.support_site is None
-            else self.data.site(ROBOT_PREFIX + hand.support_site).xpos.copy()
-        )
+        self.support_footprint = None  # the ground: no edge to fall over
+        if hand.support_site is None:
+            support = np.array([0.0, 0.0, hand.ground_height])
+        else:
+            site = self.model.site(ROBOT_PREFIX + hand.support_site).id
+            support = self.data.site_xpos[site].copy()
+            body = self.model.site_bodyid[site]
+            self.support_footprint = support_footprint(self.model, self.data, body)
         self.support_centre, self.support_height = support[:2], float(support[2])
         resting = self.resting_pose(self.support_centre, [1.0, 0.0, 0.0, 0.0])
         if contact_slots is None:
