@@ -35,6 +35,9 @@ VARIANTS = {
 """Variants by name: a planner (``--planner``) and the support term on or off (``--support``);
 the ``+support`` rows need an environment whose object rests on a body (the Allegro's palm)."""
 
+WIDTHS = (16, 8, 6, 7, 6, 7, 6)
+"""Printed width of the table's columns."""
+
 COLUMNS = ("success_rate", "falls", "pos_err_mm_mean", "angle_err_deg_mean")
 TIMES = ("solve_ms_median", "solve_ms_p90")
 
@@ -76,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--variants: {args.env}'s objects rest on the ground; no +support rows")
     rows = [run_variant(name, args, pairs) for name in names]
     print(f"{args.env}, --object {args.object}, {args.trials} trial(s) per object")
-    print(f"{'variant':>16} {'success':>8} {'falls':>6} {'pos mm':>7} {'ang °':>6} {'median':>7} {'p90':>6}")
+    header = ("variant", "success", "falls", "pos mm", "ang °", "median", "p90")
+    print(" ".join(f"{name:>{width}}" for name, width in zip(header, WIDTHS, strict=True)))
     for row in rows:
         print(
             f"{row['variant']:>16} {100 * row['success_rate']:7.1f}% {row['falls']:>6}"

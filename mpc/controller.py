@@ -144,8 +144,9 @@ class ContactImplicitMPC:
         :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
         calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
-        built with the settings' iterations, memory and compilation (None: ``env.planner``); ``settings``: solver
-        settings or a preset name (default the environment's default preset);
+        built with the settings' iterations, memory and compilation (None: ``env.planner``);
+        ``settings``: solver settings or a preset name (default the environment's default
+        preset);
         ``background_compile``: as in the constructor.
         """
         if settings is None or isinstance(settings, str):

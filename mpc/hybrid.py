@@ -6,8 +6,7 @@ gradient points. The closed-form model evaluates many plans in one batched call,
 
 1. **Sampling** (cross-entropy method, seeded): ``samples`` plans around the warm start, spread
    ``spread`` × the box's half-width; the ``elites`` lowest-cost refit the mean and spread,
-   ``rounds`` times. The warm start itself is always one of the samples.
-   The first round's samples include the warm start and zero (no motion).
+   ``rounds`` times. The first round's samples include the warm start and zero (no motion).
 2. **Multi-start L-BFGS**: box-projected L-BFGS from the warm start and from the ``starts − 1``
    best other samples, all in one batched solve (rows independent).
 3. The plan of lowest model cost is returned. Since the warm start's row is plain L-BFGS from
@@ -34,9 +33,9 @@ class Hybrid:
         samples: plans per sampling round (≥ 2); rounds: sampling rounds (0: no sampling, the
             starts are the warm start and zero); elites: samples that refit the
             distribution (1 ≤ elites ≤ samples); starts: L-BFGS starts (≥ 1: the warm start,
-            then the best other samples; without sampling, zero); spread: the first round's standard deviation as
-            a fraction of the box's half-width (> 0); seed: of the sampling, the same every
-            call, so a plan depends only on its inputs.
+            then the best other samples; without sampling, zero); spread: the first round's
+            standard deviation as a fraction of the box's half-width (> 0); seed: of the
+            sampling, the same every call, so a plan depends only on its inputs.
     """
 
     def __init__(
@@ -118,6 +117,7 @@ class Hybrid:
         best = kept_f.argsort(dim=1)[:, : self.starts - 1]
         chosen = torch.gather(kept_x, 1, best[..., None].expand(-1, -1, n))
         return chosen, self.rounds * self.samples * problems
+
 
 register_planner("hybrid", Hybrid)
 register_planner("multistart", functools.partial(Hybrid, rounds=0, starts=2))
