@@ -175,6 +175,17 @@ def test_value_and_grad_matches_the_autograd_tape_and_finite_differences(env, mo
     )
 
 
+@pytest.mark.parametrize("model", ["mpc", "qp_mpc"])
+def test_the_value_alone_equals_value_and_grads_value(env, model, request):
+    """Sampling planners ask for the cost alone: the same numbers, the QP linearized alike."""
+    mpc = request.getfixturevalue(model)
+    q, contacts = _touching_state(env)
+    frozen = mpc.freeze(q, contacts)
+    controls = 0.004 * torch.randn(5, mpc.horizon, 9, dtype=DT)
+    cost, _ = mpc.value_and_grad(controls, q, frozen, *TARGET)
+    torch.testing.assert_close(mpc.value(controls, q, frozen, *TARGET), cost)
+
+
 def test_qp_plan_stays_in_its_box_and_lowers_the_cost_from_the_warm_start(env, qp_mpc):
     q, contacts = _touching_state(env)
     qp_mpc.reset()

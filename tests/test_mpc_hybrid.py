@@ -8,8 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcontact.cli import main
+from torchcontact.environments import environment
+from torchcontact.environments.presets import MPCSettings
+from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.hybrid import Hybrid
 from torchcontact.mpc.planners import LBFGS, Objective, planner
+from torchcontact.mpc.trials import trial_configs
 
 F64 = torch.float64
 
@@ -140,3 +144,17 @@ def test_multistart_is_the_hybrid_without_sampling():
     starts = torch.cat([x0, torch.zeros_like(x0)])
     both = LBFGS(30, 5).plan(Objective(double_well), starts, _box(4, problems=2), (TILT,))
     assert plan.evaluations == both.evaluations  # L-BFGS's points only
+
+
+def test_an_environments_default_planner_is_what_its_mpc_and_trials_use(monkeypatch):
+    env = environment("fingertips")
+    assert env.planner == "lbfgs"
+    monkeypatch.setattr(env, "planner", "hybrid")
+    mpc = ContactImplicitMPC.from_env(
+        env, env.make_plant("cube"), settings=MPCSettings(compile=False)
+    )
+    assert isinstance(mpc.planner, Hybrid)
+    (config,) = trial_configs("fingertips", [("rotation", "cube")], [0])
+    assert config.planner == "hybrid"
+    (chosen,) = trial_configs("fingertips", [("rotation", "cube")], [0], planner="lbfgs")
+    assert chosen.planner == "lbfgs"
