@@ -18,6 +18,7 @@ import os
 os.environ["OMP_NUM_THREADS"] = "1"  # before torch is imported: one thread for every op
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from torchcontact.environments import environment  # noqa: E402
@@ -26,16 +27,25 @@ from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
 from torchcontact.results import write_csv, write_json  # noqa: E402
 
 VARIANTS = {
-    "lbfgs": {"planner": "lbfgs", "support": False},
-    "multistart": {"planner": "multistart", "support": False},
-    "hybrid": {"planner": "hybrid", "support": False},
+    "lbfgs": {"planner": "lbfgs"},
+    "multistart": {"planner": "multistart"},
+    "hybrid": {"planner": "hybrid"},
     "lbfgs+support": {"planner": "lbfgs", "support": True},
+    "lbfgs+support-2cm": {"planner": "lbfgs", "support_margin": 0.02},
     "hybrid+support": {"planner": "hybrid", "support": True},
 }
-"""Variants by name: a planner (``--planner``) and the support term on or off (``--support``);
-the ``+support`` rows need an environment whose object rests on a body (the Allegro's palm)."""
+"""Variants by name: the :class:`~torchcontact.mpc.trials.TrialConfig` fields they set, as
+``torchcontact run ENV --planner P [--support on] [--support-margin M]`` does (the rest the
+environment's defaults); the ``+support`` rows need an environment whose object rests on a
+body (the Allegro's palm)."""
 
-WIDTHS = (16, 8, 6, 7, 6, 7, 6)
+
+def needs_support(name: str) -> bool:
+    """Whether variant ``name`` switches the support term on."""
+    return bool({"support", "support_margin"} & set(VARIANTS[name]))
+
+
+WIDTHS = (18, 8, 6, 7, 6, 7, 6)
 """Printed width of the table's columns."""
 
 COLUMNS = ("success_rate", "falls", "pos_err_mm_mean", "angle_err_deg_mean")
@@ -44,10 +54,12 @@ TIMES = ("solve_ms_median", "solve_ms_p90")
 
 def run_variant(name: str, args: argparse.Namespace, pairs) -> dict:
     """One variant's summary row (its records resume from ``out/NAME/trials``)."""
-    options = dict(VARIANTS[name])
-    if not args.supports:
-        options.pop("support")  # the environment has no support term to switch
-    configs = trial_configs(args.env, pairs, range(args.trials), **options)
+    settings = args.env_description.preset()
+    if args.no_compile:
+        settings = dataclasses.replace(settings, compile=False)
+    configs = trial_configs(
+        args.env, pairs, range(args.trials), settings, args.max_steps, **VARIANTS[name]
+    )
     records = run_trials(configs, workers=args.workers, out=args.out / name)
     summary = summarize([record.to_dict() for record in records])
     return {"variant": name, **{key: summary[key] for key in (*COLUMNS, *TIMES, "trials")}}
@@ -60,22 +72,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--object", default="random:0-49", help="as `torchcontact run`'s")
     parser.add_argument("--trials", type=int, default=1, help="seeds 0…trials−1 per object")
     parser.add_argument("--variants", nargs="+", choices=sorted(VARIANTS), default=None)
+    parser.add_argument("--max-steps", type=int, default=None, help="default the task's")
+    parser.add_argument("--no-compile", action="store_true", help="eager objective")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, default=None, help="default results/ablation/ENV")
     args = parser.parse_args(argv)
-    if args.trials < 1 or args.workers < 1:
-        parser.error("--trials and --workers must be >= 1")
-    env = environment(args.env)
+    if args.trials < 1 or args.workers < 1 or (args.max_steps or 1) < 1:
+        parser.error("--trials, --workers and --max-steps must be >= 1")
+    env = args.env_description = environment(args.env)
     args.out = args.out or Path("results/ablation") / args.env
     try:
         pairs = env.select(args.task or env.pairs[0][0], args.object)
     except ValueError as error:
         parser.error(str(error))
     args.supports = getattr(env.make_plant(pairs[0][1]), "support_footprint", None) is not None
-    names = args.variants or [
-        name for name in VARIANTS if args.supports or not VARIANTS[name]["support"]
-    ]
-    if not args.supports and any(VARIANTS[name]["support"] for name in names):
+    names = args.variants or [name for name in VARIANTS if args.supports or not needs_support(name)]
+    if not args.supports and any(needs_support(name) for name in names):
         parser.error(f"--variants: {args.env}'s objects rest on the ground; no +support rows")
     rows = [run_variant(name, args, pairs) for name in names]
     print(f"{args.env}, --object {args.object}, {args.trials} trial(s) per object")
@@ -83,11 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     print(" ".join(f"{name:>{width}}" for name, width in zip(header, WIDTHS, strict=True)))
     for row in rows:
         print(
-            f"{row['variant']:>16} {100 * row['success_rate']:7.1f}% {row['falls']:>6}"
+            f"{row['variant']:>18} {100 * row['success_rate']:7.1f}% {row['falls']:>6}"
             f" {row['pos_err_mm_mean']:7.1f} {row['angle_err_deg_mean']:6.1f}"
             f" {row['solve_ms_median']:7.1f} {row['solve_ms_p90']:6.1f}"
         )  # fmt: skip
-    settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+    settings = {k: v for k, v in vars(args).items() if k != "env_description"}
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in settings.items()}
     write_json(args.out / "ablation.json", {"rows": rows, "settings": settings})
     write_csv(args.out / "ablation.csv", rows)
     print(f"wrote {args.out / 'ablation.json'}")
