@@ -158,3 +158,10 @@ def test_an_environments_default_planner_is_what_its_mpc_and_trials_use(monkeypa
     assert config.planner == "hybrid"
     (chosen,) = trial_configs("fingertips", [("rotation", "cube")], [0], planner="lbfgs")
     assert chosen.planner == "lbfgs"
+
+
+def test_the_cli_takes_the_environments_planner_unless_told():
+    from torchcontact.mpc.evaluate import parse_args
+
+    assert parse_args(["allegro"]).planner == environment("allegro").planner == "lbfgs"
+    assert parse_args(["allegro", "--planner", "hybrid"]).planner == "hybrid"
