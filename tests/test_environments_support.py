@@ -58,8 +58,9 @@ def test_the_support_term_charges_a_plan_that_leaves_the_palm():
 
 
 def test_support_is_refused_where_the_object_rests_on_the_ground():
-    with pytest.raises(ValueError, match="support: trifinger's object rests on the ground"):
-        environment("trifinger").cost(HandEnv("trifinger", "cube"), support=True)
+    for options in ({"support": True}, {"margin": 0.01}):
+        with pytest.raises(ValueError, match="support: trifinger's object rests on the ground"):
+            environment("trifinger").cost(HandEnv("trifinger", "cube"), **options)
     with pytest.raises(ValueError, match="support: the fingertips' objects rest"):
         fingertips = environment("fingertips")
         fingertips.cost(fingertips.make_plant("cube"), support=True)
@@ -77,15 +78,17 @@ def test_the_cli_refuses_support_with_another_cost(capsys):
 
 
 @pytest.mark.parametrize(
-    "argv, message",
+    "env, argv, message",
     [
-        (["--support-margin", "-0.01"], "--support-margin must be a distance >= 0"),
-        (["--support", "off", "--support-margin", "0.01"], "drop --support off"),
+        ("allegro", ["--support-margin", "-0.01"], "--support-margin must be a distance >= 0"),
+        ("allegro", ["--support", "off", "--support-margin", "0.01"], "drop --support off"),
+        ("allegro", ["--support-margin", "0.05"], "margin must be in [0, half the support's"),
+        ("trifinger", ["--support", "on"], "support: trifinger's object rests on the ground"),
     ],
 )
-def test_the_cli_refuses_a_meaningless_support_margin(argv, message, capsys):
+def test_the_cli_refuses_a_meaningless_support_option(env, argv, message, capsys):
     with pytest.raises(SystemExit):
-        main(["run", "allegro", "--trials", "1", *argv])
+        main(["run", env, "--trials", "1", *argv])
     assert message in capsys.readouterr().err
 
 

@@ -136,13 +136,13 @@ class HandEnvironment(Environment):
         cost = self.model.cost
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
             cost = dataclasses.replace(cost, tilt=self.model.tilt)
+        if (support or margin is not None) and plant.support_footprint is None:
+            raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
         margin = self.model.support_margin if margin is None else margin
         if support is None:
             support = margin is not None and plant.support_footprint is not None
         if not support:
             return cost
-        if plant.support_footprint is None:
-            raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
         x_min, y_min, x_max, y_max = plant.support_footprint
         margin = margin or 0.0
         region = (x_min + margin, y_min + margin, x_max - margin, y_max - margin)
