@@ -100,13 +100,13 @@ class Hybrid:
         mean, std = x0, self.spread * (upper - lower) / 2
         kept_x = x0.new_empty(problems, 0, n)
         kept_f = x0.new_empty(problems, 0)
-        for round in range(self.rounds):
+        for step in range(self.rounds):
             # one draw shared by the problems: each is planned as it would be alone
             noise = torch.randn(
                 (1, self.samples, n), generator=generator, dtype=x0.dtype, device=x0.device
             )
             x = torch.clamp(mean[:, None] + std[:, None] * noise, lower[:, None], upper[:, None])
-            if round == 0:  # the warm start and zero (no motion) compete with the samples
+            if step == 0:  # the warm start and zero (no motion) compete with the samples
                 x[:, 0], x[:, 1] = x0, torch.clamp(torch.zeros_like(x0), lower, upper)
             f = objective.values(x.reshape(-1, n), *args).view(problems, self.samples)
             order = f.argsort(dim=1)[:, : self.elites]
