@@ -5,12 +5,13 @@ same trials in one run.
     python benchmarks/planner_ablation.py trifinger --object random:30-79 --variants lbfgs hybrid
 
 Each variant is the environment's defaults with one change (``torchcontact run ENV --planner P
-[--support on|off]``), run on the same objects and trial seeds through
-:func:`~torchcontact.mpc.trials.run_trials`, each in its own folder under ``--out`` (default
-``results/ablation/ENV``), so an interrupted run resumes trial by trial and a rerun only
-reprints. It prints, per variant, success, falls, mean final errors and the median and p90 MPC
-solve time, and writes ``ablation.json`` and ``ablation.csv`` there. Solve times are comparable
-between the rows of one run only (the same machine and load); run nothing else meanwhile.
+[--support on | --support-margin M]``, :data:`VARIANTS`), run on the same objects and trial
+seeds through :func:`~torchcontact.mpc.trials.run_trials`, each in its own folder under
+``--out`` (default ``results/ablation/ENV``), so an interrupted run resumes trial by trial and
+a rerun only reprints. It prints, per variant, success, falls, mean final errors and the
+median and p90 MPC solve time, and writes ``ablation.json`` and ``ablation.csv`` there. Solve
+times are comparable between the rows of one run only (the same machine and load); run nothing
+else meanwhile.
 """
 
 import os

@@ -257,9 +257,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         )
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
-        if (
-            args.support or args.support_margin is not None
-        ):  # a scene it applies to, a margin that fits
+        # a support option: a scene it applies to and a margin that fits, before any trial
+        if args.support or args.support_margin is not None:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
             env.cost(plant, support=args.support, margin=args.support_margin)
     except ValueError as error:
