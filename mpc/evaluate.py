@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a built-in object, 'all', or (hands, custom) a mesh file in metres, a generated "
         f"object random-SEED, or a set of them: random:N (N objects from seed "
         f"{generated.REPORT_SEEDS}, the reported set) or random:A-B (seeds A to B; tune on "
-        f"seeds below {generated.REPORT_SEEDS})",
+        f"seeds below {generated.REPORT_SEEDS}); several, comma-separated",
     )
     parser.add_argument(
         "--object-size", type=float, default=None, help="largest extent [m] to scale it to"

@@ -237,3 +237,15 @@ def test_select_expands_generated_sets_for_the_hands_only():
     for spec in ("random:3", "random-1000"):
         with pytest.raises(ValueError, match="--object"):
             fingertips.select("all", spec)
+
+
+def test_select_takes_a_comma_separated_union_in_order():
+    trifinger = environment("trifinger")
+    assert trifinger.select("all", "cube,random-7,random:2-3,random-7") == [
+        ("in-hand", "cube"),
+        ("in-hand", "random-7"),
+        ("in-hand", "random-2"),
+        ("in-hand", "random-3"),
+    ]
+    with pytest.raises(ValueError, match="--object"):
+        trifinger.select("all", "cube,no_such_object")

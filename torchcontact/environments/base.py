@@ -191,7 +191,12 @@ class Environment:
         """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; where
         :attr:`user_meshes`, ``obj`` may also be a mesh path, a generated object
         ``"random-SEED"`` or a set of them, ``"random:N"`` or ``"random:A-B"``, see
-        :func:`torchcontact.generated.expand`). Raises ``ValueError`` naming the bad option."""
+        :func:`torchcontact.generated.expand`); a comma-separated list of these takes their
+        union in order (``"cube,random-7,random:0-9"``). Raises ``ValueError`` naming the bad
+        option."""
+        if "," in obj:
+            parts = [self.select(task, part.strip()) for part in obj.split(",")]
+            return list(dict.fromkeys(pair for part in parts for pair in part))
         if task not in ("all", *self.tasks):
             raise ValueError(f"--task must be one of {self.tasks} or 'all', got {task!r}")
         if self.user_meshes and obj not in self.objects:

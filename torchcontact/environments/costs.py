@@ -25,6 +25,11 @@ def contact_cost(p: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
     return (tips - p.unsqueeze(-2)).square().sum((-1, -2))
 
 
+def raised(p: torch.Tensor, floor: float) -> torch.Tensor:
+    """Positions ``p (..., 3)`` [m] with their height raised to at least ``floor`` [m]."""
+    return torch.cat([p[..., :2], p[..., 2:].clamp_min(floor)], -1)
+
+
 def grasp_cost(p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
     """``‖Σᵢ Rᵀ(tipᵢ − p)/‖tipᵢ − p‖‖²``: zero when the tip directions balance (force closure)."""
     offsets = tips - p.unsqueeze(-2)
@@ -76,6 +81,13 @@ class ManipulationCost:
     outside it cost ``support_weight`` [1/m²] × their squared distance to it. The frozen
     contact model sees the support as an endless plane, so without it nothing in the plan
     tells an object pushed over the palm's edge from one turned on it.
+
+    ``contact_floor`` [m] is the lowest height of the point the contact and grasp terms draw
+    the tips toward and around: the object's centre raised to it. At the height of a tip's
+    centre resting on the support, a plate thinner than the tips' diameter draws them to its
+    rim, where they push it sideways, instead of pressing them into the support, whose
+    friction then holds them (the model has no tip–support contact to tell it so). None: the
+    object's centre, the paper's.
     """
 
     contact: float = 1.0
@@ -89,6 +101,7 @@ class ManipulationCost:
     tilt: float = 0.0
     support: tuple[float, float, float, float] | None = None
     support_weight: float = 1e5
+    contact_floor: float | None = None
 
     def __call__(
         self,
@@ -109,9 +122,10 @@ class ManipulationCost:
             target_position: ``(..., 3)``; target_quat: ``(..., 4)``.
         """
         p, quat, tip = positions[..., :-1, :], quats[..., :-1, :], tips[..., :-1, :, :]
+        anchor = p if self.contact_floor is None else raised(p, self.contact_floor)
         path = (
-            self.contact * contact_cost(p, tip)
-            + self.grasp * grasp_cost(p, quat, tip)
+            self.contact * contact_cost(anchor, tip)
+            + self.grasp * grasp_cost(anchor, quat, tip)
             + self.control * controls.square().sum(-1)
         ).sum(-1)
         if self.tilt:

@@ -55,6 +55,9 @@ class HandModel:
             how far [m] inside that body's footprint the cost keeps the object's planned
             centre (:attr:`ManipulationCost.support`); None: no such term.
         support_weight: that term's weight [1/m²].
+        contact_floor: whether the cost's contact term pulls the tips no lower than where a
+            tip rests on the support (:attr:`ManipulationCost.contact_floor`, from the plant's
+            geometry); off: toward the object's centre, the paper's.
     """
 
     robot_stiffness: float
@@ -67,6 +70,7 @@ class HandModel:
     object_mass: float | None = None
     support_margin: float | None = None
     support_weight: float = 1e5
+    contact_floor: bool = False
 
 
 Sampler = Callable[[HandEnv, str, int], tuple[np.ndarray, np.ndarray]]
@@ -136,6 +140,9 @@ class HandEnvironment(Environment):
         cost = self.model.cost
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
             cost = dataclasses.replace(cost, tilt=self.model.tilt)
+        if self.model.contact_floor:
+            floor = plant.support_height + plant.tip_clearance
+            cost = dataclasses.replace(cost, contact_floor=floor)
         if (support or margin is not None) and plant.support_footprint is None:
             raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
         margin = self.model.support_margin if margin is None else margin
@@ -195,6 +202,7 @@ TRIFINGER_ENV = HandEnvironment(
         # the binoculars tipped over when pushed; a tilt cost on every object costs precision
         tilt=100.0,
         object_mass=PAPER_OBJECT_MASS,
+        contact_floor=True,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,

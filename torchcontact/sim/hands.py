@@ -256,6 +256,31 @@ def support_footprint(
     return (*map(float, xy.min(0)), *map(float, xy.max(0)))
 
 
+_ROUND_GEOMS = (int(mujoco.mjtGeom.mjGEOM_SPHERE), int(mujoco.mjtGeom.mjGEOM_CAPSULE))
+
+
+def tip_clearance(model: mujoco.MjModel, data: mujoco.MjData, sites) -> float:
+    """[m] How close the fingertip ``sites`` can come to a surface: the least, over the sites,
+    of how deep each lies inside the colliding spheres and capsules of its body (0 where none
+    holds it), at ``data``'s kinematics. A site at the centre of a 1 cm tip sphere stays 1 cm
+    above any surface the sphere rests on."""
+    depths = []
+    for site in sites:
+        body, point = model.site_bodyid[site], data.site_xpos[site]
+        depth = 0.0
+        for geom in np.flatnonzero(model.geom_bodyid == body):
+            kind = int(model.geom_type[geom])
+            collides = model.geom_contype[geom] or model.geom_conaffinity[geom]
+            if not collides or kind not in _ROUND_GEOMS:
+                continue
+            offset = data.geom_xmat[geom].reshape(3, 3).T @ (point - data.geom_xpos[geom])
+            half = model.geom_size[geom, 1] if kind == mujoco.mjtGeom.mjGEOM_CAPSULE else 0.0
+            offset[2] -= np.clip(offset[2], -half, half)  # to the nearest point of the axis
+            depth = max(depth, float(model.geom_size[geom, 0] - np.linalg.norm(offset)))
+        depths.append(depth)
+    return min(depths, default=0.0)
+
+
 def scene_contact_slots(model: mujoco.MjModel, resting_qpos: np.ndarray, n_tips: int) -> int:
     """Slots a scene needs: the object's contacts when it rests at ``resting_qpos (nq,)``,
     within 1 mm and at most :data:`CONTACTS_PER_PAIR` per body pair, at least 4, plus
@@ -291,7 +316,8 @@ class HandEnv(Plant):
 
     What holds the object: ``support_centre (2,)`` and ``support_height`` [m], the support
     site's (or the ground's), and ``support_footprint``, the supporting body's x, y bounds
-    (:func:`support_footprint`), None on the ground.
+    (:func:`support_footprint`), None on the ground; ``tip_clearance`` [m], how far above a
+    surface the fingertip sites stay when the tips rest on it (:func:`tip_clearance`).
     """
 
     def __init__(
@@ -357,6 +383,7 @@ class HandEnv(Plant):
             body = self.model.site_bodyid[site]
             self.support_footprint = support_footprint(self.model, self.data, body)
         self.support_centre, self.support_height = support[:2], float(support[2])
+        self.tip_clearance = tip_clearance(self.model, self.data, self.tip_sites)
         resting = self.resting_pose(self.support_centre, [1.0, 0.0, 0.0, 0.0])
         if contact_slots is None:
             qpos = np.concatenate([resting, self.initial_joints])
