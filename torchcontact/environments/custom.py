@@ -95,7 +95,8 @@ def from_mjcf(
         tips: fingertip site names; None: the file's sites named ``*tip``.
         name: the environment's name (its records' prefix).
         task: the sampler and success criterion (default :class:`PoseTask`'s).
-        cost: the MPC cost (default the paper's manipulation cost with TriFinger's weights).
+        cost: the MPC cost (default the paper's manipulation cost with TriFinger's weights and
+            its contact floor, :attr:`HandModel.contact_floor`).
         initial_joints: joints at the start of every trial; None: the file's ``qpos0``.
         control_bound: |u| per joint and step [rad or m].
         robot_stiffness: Kᵣ of the quasi-dynamic robot.
@@ -126,5 +127,6 @@ def from_mjcf(
         stiffness=stiffness,
         control_bound=control_bound,
         cost=ManipulationCost(contact=0.5, grasp=0.05, control=10.0) if cost is None else cost,
+        contact_floor=cost is None,  # the default cost draws tips no lower than they can go
     )
     return HandEnvironment(hand, model, task.name, task.criterion, task, TRIFINGER_PRESETS, objects)

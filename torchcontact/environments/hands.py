@@ -140,7 +140,7 @@ class HandEnvironment(Environment):
         cost = self.model.cost
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
             cost = dataclasses.replace(cost, tilt=self.model.tilt)
-        if self.model.contact_floor:
+        if self.model.contact_floor and isinstance(cost, ManipulationCost):
             floor = plant.support_height + plant.tip_clearance
             cost = dataclasses.replace(cost, contact_floor=floor)
         if (support or margin is not None) and plant.support_footprint is None:
