@@ -194,7 +194,7 @@ class Environment:
         :func:`torchcontact.generated.expand`); a comma-separated list of these takes their
         union in order (``"cube,random-7,random:0-9"``). Raises ``ValueError`` naming the bad
         option."""
-        if "," in obj:
+        if "," in obj and not Path(obj).is_file():  # a mesh file's name may hold a comma
             parts = [self.select(task, part.strip()) for part in obj.split(",")]
             return list(dict.fromkeys(pair for part in parts for pair in part))
         if task not in ("all", *self.tasks):

@@ -55,9 +55,9 @@ class HandModel:
             how far [m] inside that body's footprint the cost keeps the object's planned
             centre (:attr:`ManipulationCost.support`); None: no such term.
         support_weight: that term's weight [1/m²].
-        contact_floor: whether the cost's contact term pulls the tips no lower than where a
-            tip rests on the support (:attr:`ManipulationCost.contact_floor`, from the plant's
-            geometry); off: toward the object's centre, the paper's.
+        contact_floor: whether the cost's contact and grasp terms draw the tips no lower than
+            where a tip rests on the support (:attr:`ManipulationCost.contact_floor`, from the
+            plant's geometry); off: toward the object's centre, the paper's.
     """
 
     robot_stiffness: float
@@ -202,6 +202,7 @@ TRIFINGER_ENV = HandEnvironment(
         # the binoculars tipped over when pushed; a tilt cost on every object costs precision
         tilt=100.0,
         object_mass=PAPER_OBJECT_MASS,
+        # plates thinner than a tip's diameter: 4 → 14 of 14 tuning trials (docs/experiments.md)
         contact_floor=True,
     ),
     "in-hand",
