@@ -101,7 +101,6 @@ def main(argv: list[str] | None = None) -> int:
             f" {row['solve_ms_median']:7.1f} {row['solve_ms_p90']:6.1f}"
         )  # fmt: skip
     settings = {k: v for k, v in vars(args).items() if k != "env_description"}
-    settings = {k: str(v) if isinstance(v, Path) else v for k, v in settings.items()}
     write_json(args.out / "ablation.json", {"rows": rows, "settings": settings})
     write_csv(args.out / "ablation.csv", rows)
     print(f"wrote {args.out / 'ablation.json'}")

@@ -82,10 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{row['stiffness']:8g} {100 * row['success_rate']:7.0f}% {row['pos_err_mm_mean']:8.1f}"
             f" {row['angle_err_deg_mean']:7.1f} {row['solve_ms_median']:9.1f}"
         )
-    settings = {
-        key: str(value) if isinstance(value, Path) else value for key, value in vars(args).items()
-    }
-    write_json(args.out / "stiffness_sweep.json", {"rows": rows, "settings": settings})
+    write_json(args.out / "stiffness_sweep.json", {"rows": rows, "settings": vars(args)})
     write_csv(args.out / "stiffness_sweep.csv", rows)
     print(f"wrote {plot(rows, args.out / 'stiffness_sweep.png')}")
     return 0

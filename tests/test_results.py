@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,3 +42,8 @@ def test_a_value_json_cannot_write_raises_naming_the_file_and_writes_nothing(tmp
     with pytest.raises(TypeError, match="cannot write object to JSON.*bad.json"):
         write_json(tmp_path / "bad.json", {"x": object()})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_paths_are_written_as_their_strings(tmp_path):
+    path = write_json(tmp_path / "out.json", {"out": tmp_path / "run", "all": [Path("a/b")]})
+    assert read_json(path) == {"out": str(tmp_path / "run"), "all": ["a/b"]}

@@ -51,11 +51,13 @@ def json_safe(data: Any) -> Any:
 def write_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented, strict JSON: non-finite floats become ``null`` (see
     :func:`json_safe`), so the file holds no ``NaN``/``Infinity`` literal; a value that still
-    is one raises ``ValueError`` before anything is written."""
+    is one raises ``ValueError`` before anything is written. Paths are written as strings."""
 
     def default(x):
         if hasattr(x, "tolist"):
             return json_safe(x.tolist())
+        if isinstance(x, os.PathLike):
+            return os.fspath(x)
         raise TypeError(f"cannot write {type(x).__name__} to JSON ({path})")
 
     text = json.dumps(json_safe(data), indent=2, default=default, allow_nan=False)
