@@ -52,7 +52,7 @@ from torchcontact.results import read_json, write_json
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
 
-SCENES_VERSION = 9
+SCENES_VERSION = 10
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
 resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
 
@@ -273,6 +273,7 @@ class TrialRecord:
     object_friction_mu: float | None = None
     object_collision: str | None = None
     eager_steps: list[int] | None = None
+    start_penetration_mm: float | None = None
     inputs: dict | None = None
 
     def to_dict(self) -> dict:
@@ -285,7 +286,7 @@ class TrialRecord:
         """The record of :meth:`to_dict` (its configuration completed by legacy defaults; no
         ``inputs`` in records written before them)."""
         names = [f.name for f in fields(cls) if f.name not in ("config", "inputs")]
-        optional = (*OBJECT_FACTS, "eager_steps")
+        optional = (*OBJECT_FACTS, "eager_steps", "start_penetration_mm")
         outcome = {name: record[name] for name in names if name not in optional}
         outcome.update({name: record.get(name) for name in optional})
         config = TrialConfig(**stored_config(record))
@@ -448,6 +449,7 @@ def run_trial(
         steps_with_dropped_contacts=sum(n > slots for n in found),
         **object_facts(plant),
         eager_steps=eager,
+        start_penetration_mm=start_penetration_mm(plant),
         inputs=inputs,
         **times,
     )
@@ -457,6 +459,14 @@ def run_trial(
             f"trial {config.name} ended with non-finite {', '.join(bad)}; no record written"
         )
     return record
+
+
+def start_penetration_mm(plant) -> float | None:
+    """[mm] How deep the robot overlapped the object at the start, after :meth:`reset` moved
+    the fingers out (a hand's plant; a base link may stay inside a large object), None for a
+    plant that does not measure it."""
+    depth = getattr(plant, "start_penetration", None)
+    return None if depth is None else 1e3 * float(depth)
 
 
 def object_facts(plant) -> dict:
@@ -533,6 +543,7 @@ _OUTCOME_KINDS = {
     **dict.fromkeys(("detect_ms", "solve_ms", "sim_ms"), "numbers"),
     "iterations": "ints",
     "eager_steps": "ints?",  # absent from records written before background compiles
+    "start_penetration_mm": "number?",  # absent before scenes 10
 }
 _ITEM_KINDS = {"numbers": "number", "ints": "int", "strs": "str", "pose": "number"}
 

@@ -22,6 +22,7 @@ import torch
 from torchcontact.assets import asset_path
 from torchcontact.objects import ObjectOptions, resolve
 from torchcontact.shapes import OBJECT_SIZES, ObjectMesh
+from torchcontact.sim.clearance import clear_joints
 from torchcontact.sim.detect import OVERFLOW_POLICIES, ContactDetector
 from torchcontact.sim.plant import Plant, as_pose, as_vector
 from torchcontact.sim.robot import Robot
@@ -422,9 +423,9 @@ class HandEnv(Plant):
 
     def resting_pose(self, xy, quat) -> np.ndarray:
         """``(7,)`` pose at ``xy (2,)`` [m] turned by ``quat (4,)`` whose lowest point is at the
-        support's height (the palm centre, or the ground). On the Allegro, finger bases and
-        curled fingers may overlap a large object there, as in the paper's setup; the
-        simulation pushes them apart in its first substeps."""
+        support's height (the palm centre, or the ground). A large object there may overlap
+        the fingers at their initial joints: :meth:`reset` moves them out (a finger's base
+        link, which no joint moves far, may still overlap it on the Allegro)."""
         xy = as_vector("xy", xy, 2)
         quat = as_pose("quat", [0.0, 0.0, 0.0, *as_vector("quat", quat, 4)])[3:]
         z = self.resting_height(quat)
@@ -436,16 +437,26 @@ class HandEnv(Plant):
         Args:
             object_pose: ``(7,)`` position [m] and quaternion (w, x, y, z), normalised here.
             target_pose: ``(7,)`` pose shown by the goal marker; None keeps the current one.
-            joints: ``(n_joints,)`` [rad]; None uses the hand's initial configuration.
+            joints: ``(n_joints,)`` [rad], kept as given; None: the hand's initial
+                configuration moved out of the object wherever a finger would start inside it
+                (:func:`~torchcontact.sim.clearance.clear_joints`; the overlap left, 0 unless
+                the object reaches where no finger can leave it, is
+                :attr:`start_penetration` [m]).
         """
         pose = as_pose("object_pose", object_pose)
-        n = self.hand.n_joints
+        n, joints_given = self.hand.n_joints, joints
         joints = self.initial_joints if joints is None else as_vector("joints", joints, n)
         target = self.target if target_pose is None else as_pose("target_pose", target_pose)
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = np.concatenate([pose, joints])
+        self.start_penetration = 0.0
+        if joints_given is None:
+            object_body = self.model.body(OBJECT_BODY).id
+            self.start_penetration = clear_joints(
+                self.model, self.data, object_body, np.arange(7, self.model.nq), self._joint_dofs
+            )
         if self.hand.servo == "position":
-            self.data.ctrl[:] = joints
+            self.data.ctrl[:] = self.data.qpos[7:]
         self.set_target(target)
         mujoco.mj_forward(self.model, self.data)
         return self.state()

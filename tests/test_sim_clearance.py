@@ -1,0 +1,90 @@
+"""A trial starts with no finger inside its object: the joints are moved out (sim.clearance)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from torchcontact.environments import environment
+from torchcontact.sim.clearance import CLEARANCE, penetrations
+from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.scene import OBJECT_BODY
+
+# a 12.8 cm generated object whose trial seed 1 places it through a TriFinger fingertip
+OVERLAPPING = ("random-91", 1)
+
+
+def robot_penetration(plant: HandEnv) -> float:
+    """[m] The deepest overlap of any robot geom with the object (0: none)."""
+    model, data = plant.model, plant.data
+    body = model.body(OBJECT_BODY).id
+    robot = set(range(1, model.nbody)) - {body}
+    return max((-c.dist for c in penetrations(model, data, body, robot)), default=0.0)
+
+
+def overlapping_trifinger() -> tuple[HandEnv, np.ndarray, np.ndarray]:
+    env = environment("trifinger")
+    plant = env.make_plant(OVERLAPPING[0])
+    initial, target = env.sample(plant, "in-hand", OVERLAPPING[1])
+    return plant, initial, target
+
+
+def test_the_hands_initial_joints_overlap_this_object():
+    """The case the clearing exists for: the fixed initial joints put a tip inside it."""
+    plant, initial, target = overlapping_trifinger()
+    plant.reset(initial, target, joints=plant.initial_joints)
+    assert robot_penetration(plant) > 0.01
+
+
+def test_reset_moves_the_fingers_out_of_the_object_and_leaves_the_object():
+    plant, initial, target = overlapping_trifinger()
+    state = plant.reset(initial, target)
+    assert plant.start_penetration == 0.0
+    assert robot_penetration(plant) == 0.0
+    np.testing.assert_allclose(state[:7], initial, atol=1e-12)
+    moved = np.abs(state[7:] - plant.initial_joints).reshape(3, 3).max(1)
+    assert (moved > 1e-3).sum() >= 1, "a finger should have moved"
+    assert (moved == 0).sum() >= 1, "a finger clear of the object should stay where it was"
+    # the servos hold the cleared joints: the first step does not push the fingers back in
+    plant.step(np.zeros(9))
+    assert robot_penetration(plant) < CLEARANCE
+
+
+def test_joints_given_to_reset_are_kept_as_given():
+    plant, initial, target = overlapping_trifinger()
+    state = plant.reset(initial, target, joints=plant.initial_joints)
+    np.testing.assert_array_equal(state[7:], plant.initial_joints)
+    assert plant.start_penetration == 0.0  # not measured: the caller chose the joints
+
+
+@pytest.mark.parametrize("hand", ["trifinger", "allegro"])
+def test_an_object_clear_of_the_fingers_starts_at_the_initial_joints(hand):
+    env = environment(hand)
+    plant = env.make_plant("cube")
+    far = plant.resting_pose(plant.support_centre + np.array([0.5, 0.5]), [1.0, 0.0, 0.0, 0.0])
+    state = plant.reset(far)
+    np.testing.assert_array_equal(state[7:], plant.initial_joints)
+
+
+def test_joints_stay_within_their_limits():
+    env = environment("allegro")
+    plant = env.make_plant("random-58")
+    initial, target = env.sample(plant, "on-palm", 0)
+    state = plant.reset(initial, target)
+    low, high = plant.model.jnt_range[1:].T  # joint 0 is the object's free joint
+    assert np.all(state[7:] >= low - 1e-12) and np.all(state[7:] <= high + 1e-12)
+    assert not np.array_equal(state[7:], plant.initial_joints)
+
+
+def test_trial_records_store_the_overlap_left_at_the_start():
+    from torchcontact.mpc.trials import start_penetration_mm
+
+    plant, initial, target = overlapping_trifinger()
+    plant.reset(initial, target)
+    assert start_penetration_mm(plant) == 0.0
+    env = environment("allegro")
+    plant = env.make_plant("random-58")  # its base links reach into the object
+    plant.reset(*env.sample(plant, "on-palm", 0))
+    assert start_penetration_mm(plant) == pytest.approx(1e3 * robot_penetration(plant))
+    assert start_penetration_mm(plant) > 1.0
+    assert start_penetration_mm(environment("fingertips").make_plant("cube")) is None
