@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -50,11 +52,22 @@ def test_reset_moves_the_fingers_out_of_the_object_and_leaves_the_object():
     assert robot_penetration(plant) < CLEARANCE
 
 
-def test_joints_given_to_reset_are_kept_as_given():
+def test_joints_given_to_reset_are_kept_as_given_and_their_overlap_measured():
     plant, initial, target = overlapping_trifinger()
     state = plant.reset(initial, target, joints=plant.initial_joints)
     np.testing.assert_array_equal(state[7:], plant.initial_joints)
-    assert plant.start_penetration == 0.0  # not measured: the caller chose the joints
+    assert plant.start_penetration == pytest.approx(robot_penetration(plant))
+    assert plant.start_penetration > 0.01
+
+
+def test_the_allegro_keeps_the_papers_start_with_its_fingers_pressed_onto_the_object():
+    env = environment("allegro")
+    assert not env.hand.clear_start
+    plant = env.make_plant("random-58")
+    state = plant.reset(*env.sample(plant, "on-palm", 0))
+    np.testing.assert_array_equal(state[7:], plant.initial_joints)
+    assert plant.start_penetration == pytest.approx(robot_penetration(plant))
+    assert plant.start_penetration > 0.005
 
 
 @pytest.mark.parametrize("hand", ["trifinger", "allegro"])
@@ -68,12 +81,15 @@ def test_an_object_clear_of_the_fingers_starts_at_the_initial_joints(hand):
 
 def test_joints_stay_within_their_limits():
     env = environment("allegro")
-    plant = env.make_plant("random-58")
-    initial, target = env.sample(plant, "on-palm", 0)
-    state = plant.reset(initial, target)
+    plant = HandEnv(dataclasses.replace(env.hand, clear_start=True), "random-58")
+    overlap = plant.reset(*env.sample(plant, "on-palm", 0), joints=plant.initial_joints)
+    depth = robot_penetration(plant)
+    state = plant.reset(*env.sample(plant, "on-palm", 0))
     low, high = plant.model.jnt_range[1:].T  # joint 0 is the object's free joint
     assert np.all(state[7:] >= low - 1e-12) and np.all(state[7:] <= high + 1e-12)
-    assert not np.array_equal(state[7:], plant.initial_joints)
+    assert not np.array_equal(state[7:], overlap[7:])
+    # the fingers leave; the base links, which no joint moves far, may stay in, no deeper
+    assert 0 < plant.start_penetration <= depth
 
 
 def test_trial_records_store_the_overlap_left_at_the_start():
@@ -83,8 +99,33 @@ def test_trial_records_store_the_overlap_left_at_the_start():
     plant.reset(initial, target)
     assert start_penetration_mm(plant) == 0.0
     env = environment("allegro")
-    plant = env.make_plant("random-58")  # its base links reach into the object
+    plant = env.make_plant("random-58")  # its fingers start inside the object
     plant.reset(*env.sample(plant, "on-palm", 0))
     assert start_penetration_mm(plant) == pytest.approx(1e3 * robot_penetration(plant))
     assert start_penetration_mm(plant) > 1.0
     assert start_penetration_mm(environment("fingertips").make_plant("cube")) is None
+
+
+def test_a_user_robots_slide_joints_lift_its_pads_off_a_wide_slab():
+    """The example gripper's pads, 16 cm apart when open, stand in a 20 cm slab laid across
+    them: the close joints cannot open further, so the lift joints raise the pads onto it."""
+    from pathlib import Path
+
+    import trimesh
+
+    from torchcontact.environments.custom import from_mjcf
+    from torchcontact.shapes import assemble
+
+    gripper = Path(__file__).resolve().parents[1] / "examples" / "two_finger_gripper.xml"
+    env = from_mjcf(gripper, name="gripper")
+    slab = assemble("slab", [trimesh.creation.box((1, 1, 1))], np.array([0.05, 0.2, 0.025]), 0.01)
+    plant = env.make_plant(slab)
+    initial = plant.resting_pose([0.0, 0.0], [1.0, 0.0, 0.0, 0.0])
+    plant.reset(initial, joints=plant.initial_joints)
+    assert robot_penetration(plant) > 0.005
+    state = plant.reset(initial)
+    assert plant.start_penetration == 0.0 and robot_penetration(plant) == 0.0
+    close, lift = state[[7, 9]], state[[8, 10]]
+    np.testing.assert_array_equal(close, 0.0)
+    pad_bottom = 0.015  # above the ground at lift 0
+    assert np.all(lift + pad_bottom > 0.025)

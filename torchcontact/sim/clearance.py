@@ -1,11 +1,13 @@
 """A start without interpenetration: the robot's joints moved out of the object it overlaps.
 
 A hand's initial configuration is fixed while its objects and their placements vary, so a large
-object may be placed through a finger (35–45 % of the TriFinger's generated-object trials, and
-most of the Allegro's, whose curled fingers lie over the palm). MuJoCo then resolves the overlap
-by a push in the first substeps that no controller commanded. :func:`clear_joints` instead
-starts the robot at the nearest configuration clear of the object, by damped least squares on
-the penetrating contacts' distances.
+object may be placed through a finger (before scenes 10, in 35–48 % of the TriFinger's trials).
+MuJoCo then resolves the overlap by a shove in the first substeps that no controller
+commanded. :func:`clear_joints` instead starts the robot near its initial configuration, clear
+of the object, by damped least squares on the penetrating contacts' distances. It is a local
+method: it moves each contact along its normal, so an overlap whose normal no joint moves along
+within its limits (a base link, or a pad deep inside an object that only another direction
+would leave) stays, and is reported.
 """
 
 from __future__ import annotations
@@ -22,17 +24,35 @@ link, turning about an axis that passes near the object) is left as it is: clear
 swing the joint to its limit for a millimetre."""
 
 
-def penetrations(model: mujoco.MjModel, data: mujoco.MjData, body: int, robot_bodies) -> list:
+def penetrations(model: mujoco.MjModel, data: mujoco.MjData, body: int, robot) -> list:
     """The contacts of ``data`` (after collision detection) between ``body`` and any of
-    ``robot_bodies`` with a negative distance."""
+    ``robot`` with a negative distance."""
     found = []
     for i in range(data.ncon):
         contact = data.contact[i]
         bodies = model.geom_bodyid[contact.geom1], model.geom_bodyid[contact.geom2]
         if contact.dist < 0 and body in bodies:
             other = bodies[1] if bodies[0] == body else bodies[0]
-            if other in robot_bodies:
+            if other in robot:
                 found.append(contact)
+    return found
+
+
+def robot_overlap(
+    model: mujoco.MjModel, data: mujoco.MjData, body: int, joint_dofs: np.ndarray
+) -> float:
+    """[m] The deepest overlap of ``body`` with the bodies the joints ``joint_dofs`` carry, at
+    ``data``'s configuration (0: none)."""
+    mujoco.mj_forward(model, data)
+    found = penetrations(model, data, body, robot_bodies(model, joint_dofs))
+    return max((-contact.dist for contact in found), default=0.0)
+
+
+def robot_bodies(model: mujoco.MjModel, joint_dofs: np.ndarray) -> set[int]:
+    """Ids of every body the joints ``joint_dofs`` carry (their bodies and all below)."""
+    found: set[int] = set()
+    for dof in joint_dofs:
+        found |= _subtree(model, int(model.dof_bodyid[dof]))
     return found
 
 
@@ -60,26 +80,24 @@ def clear_joints(
         joint_dofs: ``(n,)`` their dof indices.
 
     Returns:
-        The deepest penetration left [m] (0 when cleared within ``max_iter`` iterations).
+        The deepest penetration left [m] (:func:`robot_overlap`; 0 when cleared).
     """
-    robot_bodies = {int(model.dof_bodyid[dof]) for dof in joint_dofs}
-    for dof in joint_dofs:  # every body carried by a robot joint
-        robot_bodies |= _subtree(model, int(model.dof_bodyid[dof]))
+    robot = robot_bodies(model, joint_dofs)
     joints = model.dof_jntid[joint_dofs]
     limited = model.jnt_limited[joints].astype(bool)
     low, high = model.jnt_range[joints].T
     jacp = np.zeros((3, model.nv))
     for _ in range(max_iter):
         mujoco.mj_forward(model, data)
-        found = penetrations(model, data, body, robot_bodies)
+        found = penetrations(model, data, body, robot)
         if not found:
             return 0.0
         rows, gaps = [], []
         for contact in found:
             normal, point = contact.frame[:3], contact.pos
             robot_first = model.geom_bodyid[contact.geom1] != body
-            robot = model.geom_bodyid[contact.geom1 if robot_first else contact.geom2]
-            mujoco.mj_jac(model, data, jacp, None, point, robot)
+            link = model.geom_bodyid[contact.geom1 if robot_first else contact.geom2]
+            mujoco.mj_jac(model, data, jacp, None, point, link)
             # the distance grows as geom2 moves along the normal and geom1 against it
             row = (-normal if robot_first else normal) @ jacp[:, joint_dofs]
             if np.linalg.norm(row) >= MIN_LEVER:
@@ -90,9 +108,7 @@ def clear_joints(
         q = data.qpos[joint_qpos]
         q = q + _step(np.array(rows), np.array(gaps), q, limited, low, high, damping)
         data.qpos[joint_qpos] = np.where(limited, np.clip(q, low, high), q)
-    mujoco.mj_forward(model, data)
-    left = penetrations(model, data, body, robot_bodies)
-    return max((-c.dist for c in left), default=0.0)
+    return robot_overlap(model, data, body, joint_dofs)
 
 
 def _step(a, b, q, limited, low, high, damping) -> np.ndarray:
