@@ -129,3 +129,13 @@ def test_a_user_robots_slide_joints_lift_its_pads_off_a_wide_slab():
     np.testing.assert_array_equal(close, 0.0)
     pad_bottom = 0.015  # above the ground at lift 0
     assert np.all(lift + pad_bottom > 0.025)
+
+
+def test_a_user_robot_may_keep_its_initial_joints():
+    from pathlib import Path
+
+    from torchcontact.environments.custom import from_mjcf
+
+    gripper = Path(__file__).resolve().parents[1] / "examples" / "two_finger_gripper.xml"
+    assert from_mjcf(gripper, name="gripper").hand.clear_start
+    assert not from_mjcf(gripper, name="gripper", clear_start=False).hand.clear_start

@@ -85,6 +85,7 @@ def from_mjcf(
     stiffness: float = 0.5,
     frame_skip: int = 50,
     objects: tuple[str, ...] = ("cube",),
+    clear_start: bool = True,
 ) -> HandEnvironment:
     """The environment of the robot in MJCF file ``robot``.
 
@@ -103,6 +104,8 @@ def from_mjcf(
         stiffness: K of the paper's contact model.
         frame_skip: MuJoCo substeps (2 ms) per control step.
         objects: the built-in objects of ``--object all``.
+        clear_start: move the initial joints out of an object placed through a finger at
+            the start of a trial (:attr:`~torchcontact.sim.hands.Hand.clear_start`).
     """
     path = Path(robot).resolve()
     description = Robot.from_mjcf(path, tips)
@@ -121,6 +124,7 @@ def from_mjcf(
         ground_friction=0.5,
         camera_position=(0.0, -0.4, 0.35),
         tip_sites=None if tips is None else tuple(tips),
+        clear_start=clear_start,
     )
     model = HandModel(
         robot_stiffness=robot_stiffness,

@@ -432,8 +432,8 @@ class HandEnv(Plant):
     def resting_pose(self, xy, quat) -> np.ndarray:
         """``(7,)`` pose at ``xy (2,)`` [m] turned by ``quat (4,)`` whose lowest point is at the
         support's height (the palm centre, or the ground). A large object there may overlap
-        the fingers at their initial joints: :meth:`reset` moves them out (a finger's base
-        link, which no joint moves far, may still overlap it on the Allegro)."""
+        the fingers at their initial joints: :meth:`reset` moves them out where
+        :attr:`Hand.clear_start` (a base link that no joint moves far may stay inside)."""
         xy = as_vector("xy", xy, 2)
         quat = as_pose("quat", [0.0, 0.0, 0.0, *as_vector("quat", quat, 4)])[3:]
         z = self.resting_height(quat)
