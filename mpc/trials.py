@@ -462,9 +462,10 @@ def run_trial(
 
 
 def start_penetration_mm(plant) -> float | None:
-    """[mm] How deep the robot overlapped the object at the start, after :meth:`reset` moved
-    the fingers out (a hand's plant; a base link may stay inside a large object), None for a
-    plant that does not measure it."""
+    """[mm] How deep the robot overlapped the object at the start of a hand's trial, after
+    :meth:`~torchcontact.sim.hands.HandEnv.reset` moved the fingers out where the hand's
+    ``clear_start`` says (a base link may stay inside a large object); None for a plant that
+    does not measure it."""
     depth = getattr(plant, "start_penetration", None)
     return None if depth is None else 1e3 * float(depth)
 
