@@ -60,7 +60,6 @@ def clear_joints(
     model: mujoco.MjModel,
     data: mujoco.MjData,
     body: int,
-    joint_qpos: np.ndarray,
     joint_dofs: np.ndarray,
     *,
     clearance: float = CLEARANCE,
@@ -76,14 +75,14 @@ def clear_joints(
 
     Args:
         body: the object's body id.
-        joint_qpos: ``(n,)`` qpos indices of the robot's hinge or slide joints.
-        joint_dofs: ``(n,)`` their dof indices.
+        joint_dofs: ``(n,)`` dof indices of the robot's hinge or slide joints.
 
     Returns:
         The deepest penetration left [m] (:func:`robot_overlap`; 0 when cleared).
     """
     robot = robot_bodies(model, joint_dofs)
     joints = model.dof_jntid[joint_dofs]
+    joint_qpos = model.jnt_qposadr[joints]
     limited = model.jnt_limited[joints].astype(bool)
     low, high = model.jnt_range[joints].T
     jacp = np.zeros((3, model.nv))

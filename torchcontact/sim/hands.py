@@ -454,17 +454,15 @@ class HandEnv(Plant):
         :attr:`start_penetration` [m].
         """
         pose = as_pose("object_pose", object_pose)
-        n, joints_given = self.hand.n_joints, joints
+        clear = joints is None and self.hand.clear_start
+        n = self.hand.n_joints
         joints = self.initial_joints if joints is None else as_vector("joints", joints, n)
         target = self.target if target_pose is None else as_pose("target_pose", target_pose)
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = np.concatenate([pose, joints])
-        object_body, dofs = self.model.body(OBJECT_BODY).id, self._joint_dofs
-        if joints_given is None and self.hand.clear_start:
-            qpos = np.arange(7, self.model.nq)
-            self.start_penetration = clear_joints(self.model, self.data, object_body, qpos, dofs)
-        else:
-            self.start_penetration = robot_overlap(self.model, self.data, object_body, dofs)
+        measure = clear_joints if clear else robot_overlap
+        object_body = self.model.body(OBJECT_BODY).id
+        self.start_penetration = measure(self.model, self.data, object_body, self._joint_dofs)
         if self.hand.servo == "position":
             self.data.ctrl[:] = self.data.qpos[7:]
         self.set_target(target)
