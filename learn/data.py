@@ -11,7 +11,8 @@ File format (version :data:`VERSION`): a dataset is a directory holding
     :class:`~torchcontact.integrate.JointLayout`), ``pose_weights`` (the MPC's position [1/m²]
     and orientation weights), ``system`` (the affine quasi-dynamic system ``Q (nv,)``,
     ``b0 (nv,)``, ``B (nv, nu)``: ``b(u) = b0 + B·u``), ``u_lower``, ``u_upper``; the sizes
-    ``nq``, ``nv``, ``nu``, ``slots``; ``control_dt`` [s] simulated per step; and
+    ``nq``, ``nv``, ``nu``, ``slots``; ``control_dt`` [s] simulated per step; the object's
+    ``object_size`` [m] and ``object_mass`` [kg] (where the scene has an object); and
     ``trajectories``: one entry ``{"id", "file", "seed", "actions", "steps"}`` per finished
     trajectory.
 ``trajectory_00000.npz`` (one per trajectory, ``np.savez``, written atomically)
@@ -107,7 +108,18 @@ def scene_header(scene: Scene | BoxPushingScene) -> dict:
         "nu": scene.system.n_robot,
         "slots": scene.plant.detector.slots,
         "control_dt": scene.control_dt,
+        **object_header(scene.plant),
     }
+
+
+def object_header(plant) -> dict:
+    """The manipulated object's size [m] and mass [kg], where the plant has one: data of a
+    name whose shape has changed since (a generated object's family, a mesh file edited) are
+    then refused on resume rather than mixed in."""
+    obj = getattr(plant, "object", None)
+    if obj is None:
+        return {}
+    return {"object_size": [round(float(x), 7) for x in obj.size], "object_mass": obj.mass}
 
 
 def collect_trajectory(

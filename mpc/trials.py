@@ -52,7 +52,7 @@ from torchcontact.results import read_json, write_json
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
 
-SCENES_VERSION = 10
+SCENES_VERSION = 11
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
 resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
 

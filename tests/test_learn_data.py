@@ -132,6 +132,18 @@ def test_collecting_other_settings_into_a_dataset_is_refused(dataset):
         collect(dataset, "trifinger", trajectories=3, steps=7, progress=False)
 
 
+def test_data_of_an_object_whose_shape_changed_are_not_resumed(dataset, tmp_path):
+    """The manifest records the object's size and mass: data of a name whose shape has
+    changed since (a generated family's new version, an edited mesh) are not mixed in."""
+    other = _copy(dataset, tmp_path / "reshaped")
+    manifest = json.loads((other / "manifest.json").read_text())
+    assert len(manifest["object_size"]) == 3 and manifest["object_mass"] > 0
+    manifest["object_size"] = [0.05, 0.06, 0.07]
+    (other / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(DataFormatError, match=r"manifest.json.*'object_size'"):
+        collect(other, "trifinger", trajectories=3, steps=6, progress=False)
+
+
 def _copy(source, target):
     target.mkdir()
     for path in source.iterdir():

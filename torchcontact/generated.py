@@ -6,8 +6,9 @@ bounding box whose aspect ratio (longest over shortest side) is drawn from 1:1 t
 plates, tall columns and long rods all occur, then turned onto its most likely stable face and
 scaled to a largest extent of 5–15 cm. The resting face is computed, not assumed: the
 quasi-static rest probabilities of the hull's faces about the union's centre of mass
-(``trimesh.poses.compute_stable_poses``), the most likely one kept, and the centre of mass
-checked to lie over it.
+(``trimesh.poses.compute_stable_poses``), the most likely one kept whose edges, at the final
+aspect ratio, lie at least :data:`BASE_MARGIN` of the largest extent from below the centre of
+mass (the face of the widest margin where none does: a ball or a pebble rests on a point).
 
 Seeds are split: seeds below :data:`REPORT_SEEDS` are for tuning, seeds from
 :data:`REPORT_SEEDS` on are the reported, held-out set. ``"random:N"`` names the first N of
@@ -30,8 +31,9 @@ from trimesh.transformations import random_rotation_matrix
 from torchcontact.shapes import COLLISIONS, DEFAULT_MASS, ObjectMesh, assemble, convex
 
 GENERATOR_VERSION = 1
-"""Version of the generator, part of each seed's random stream: a change of the family bumps it
-(and :data:`~torchcontact.mpc.trials.SCENES_VERSION`), so old records are rerun, not reused."""
+"""Version of the seeds' random stream, part of each: a change of what a seed draws bumps it. A
+change of what is made of the draws (scenes 11: the resting face's margin judged after the
+stretch) bumps :data:`~torchcontact.mpc.trials.SCENES_VERSION` only, so old records are rerun."""
 
 REPORT_SEEDS = 1000
 """First seed of the reported set: tune on seeds below it, report on seeds from it on."""
@@ -124,17 +126,14 @@ def generate(
     rng = np.random.default_rng([GENERATOR_VERSION, _seed(seed)])
     count = int(rng.integers(PARTS[0], PARTS[1] + 1))
     parts = _parts(rng, count)
-    rested = _rest(assemble(name(seed), parts, _box(rng), mass))
-    sides = np.sort(_box(rng))
+    shape = assemble(name(seed), parts, _box(rng), mass)
+    rested = _rest(shape, np.sort(_box(rng)))
     largest = float(rng.uniform(*EXTENT))
     if extent is not None:
         largest = _positive("extent", extent)
     elif scale is not None:
         largest *= _positive("scale", scale)
-    # the drawn sides by rank onto the resting axes: an axis-aligned stretch keeps the resting
-    # face horizontal and the centre of mass over it, and sets the aspect ratio exactly
-    size = sides[np.argsort(np.argsort(rested.size))] * largest
-    obj = assemble(name(seed), rested.parts, size, mass)
+    obj = assemble(name(seed), rested.parts, rested.size * largest, mass)
     hull = collision != "parts" and len(obj.parts) > 1
     return dataclasses.replace(obj, collide_hull=True) if hull else obj
 
@@ -192,25 +191,31 @@ def _primitive(kind: str, dims: np.ndarray, rng: np.random.Generator) -> np.ndar
     return cloud / np.abs(cloud).max(0) * dims
 
 
-def _rest(obj: ObjectMesh) -> ObjectMesh:
-    """``obj`` turned onto the most likely of the hull's stable faces about its centre of mass
-    whose edges lie at least :data:`BASE_MARGIN` of the largest extent from below the centre
-    of mass (so it does not rock off it); the face of the widest such margin when none does."""
+def _rest(obj: ObjectMesh, sides: np.ndarray) -> ObjectMesh:
+    """``obj`` turned onto one of its hull's stable faces and stretched to ``sides (3,)``
+    (sorted, largest 1): the most likely face (quasi-static rest probabilities about the
+    centre of mass) whose edges lie at least :data:`BASE_MARGIN` of the largest extent from
+    below the centre of mass once stretched; the face of the widest such margin when none does.
+
+    The sides go by rank onto the resting axes: an axis-aligned stretch keeps the resting face
+    horizontal and the centre of mass over it, and sets the aspect ratio exactly, but it moves
+    the face's edges relative to the extent, so the margin is judged after it."""
     hull = convex(obj.vertices)
     transforms, probabilities = trimesh.poses.compute_stable_poses(hull, obj.centre_of_mass)
     candidates = []
     for index in np.argsort(-probabilities, kind="stable"):
         rotation = transforms[index][:3, :3]
         parts = tuple(convex(part.vertices @ rotation.T) for part in obj.parts)
-        rested = assemble(obj.name, parts, _extents(parts), obj.mass)
-        margin = _base_margin(rested)
-        if margin >= BASE_MARGIN * float(rested.size.max()):
-            return rested
-        candidates.append((margin, rested))
-    margin, rested = max(candidates, key=lambda candidate: candidate[0])
+        size = _extents(parts)
+        stretched = assemble(obj.name, parts, sides[np.argsort(np.argsort(size))], obj.mass)
+        margin = _base_margin(stretched)
+        if margin >= BASE_MARGIN * float(stretched.size.max()):
+            return stretched
+        candidates.append((margin, stretched))
+    margin, stretched = max(candidates, key=lambda candidate: candidate[0])
     if not margin > 0:
         raise RuntimeError(f"{obj.name}: no face has its centre of mass over it")
-    return rested
+    return stretched
 
 
 def _base_margin(obj: ObjectMesh) -> float:
