@@ -3,11 +3,13 @@
 Collects the transitions with :func:`torchcontact.learn.data.collect` (random reach-and-push
 actions, resumable; a rerun reuses them), cuts them into the loss's windows and runs the same
 :func:`torchcontact.learn.fit.fit_steps` as ``torchcontact learn-k`` with its default model
-(contact-network K and D, the system calibration, the robot term), one CPU thread. Prints a
-table and writes ``results/learn/fit_speed.json``::
+(contact-network K and D, the system calibration, the robot term), one CPU thread, or on a GPU
+with ``--device cuda`` (as ``learn-k --device cuda``). Prints a table and writes
+``results/learn/fit_speed.json`` (``fit_speed_cuda.json`` on a GPU)::
 
     python benchmarks/learn_fit_speed.py                       # 2000 x 50 = 100k transitions
     python benchmarks/learn_fit_speed.py --trajectories 40     # a quick check
+    python benchmarks/learn_fit_speed.py --device cuda         # the same fit on a GPU
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--calibrate", default="command_gain,robot_stiffness,object_metric")
     parser.add_argument("--workers", type=int, default=1, help="collection processes")
     parser.add_argument("--out", type=Path, default=Path("results/learn"))
+    parser.add_argument("--device", default="cpu", help="where the fit runs: cpu or cuda")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     data_dir = (
@@ -74,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     steps = [StepData.from_transitions(part, args.loss_horizon) for part in (train, val)]
     steps.append(StepData.from_transitions(test))
+    steps = [part.to(args.device) for part in steps]
     windows_s = time.perf_counter() - start
     config = FitConfig(
         stiffness=args.stiffness,
@@ -89,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     weights = tuple(meta["pose_weights"])
     result = fit_steps(build_model(config, meta), steps[0], steps[1], weights, config)
-    paper = one_step_error(constant_model(meta["paper_stiffness"], meta), steps[2], weights)
+    paper_model = constant_model(meta["paper_stiffness"], meta).to(args.device)
+    paper = one_step_error(paper_model, steps[2], weights)
     learned = one_step_error(result.model, steps[2], weights)
     epochs = len(result.history)
     record = {
@@ -102,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         "seconds_per_epoch": result.seconds / epochs,
         "adam_steps": epochs * -(-len(train) // args.batch_size),
         "threads": torch.get_num_threads(),
+        "device": torch.cuda.get_device_name() if args.device.startswith("cuda") else "cpu",
         "config": vars(args) | {"out": str(args.out)},
         "one_step_test_paper_k": paper,
         "one_step_test_learned": learned,
@@ -118,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         f"one-step test error: paper K {paper['pos_mm']:.2f} mm {paper['angle_deg']:.2f}°, "
         f"learned {learned['pos_mm']:.2f} mm {learned['angle_deg']:.2f}°"
     )
-    path = write_json(args.out / "fit_speed.json", record)
+    suffix = "" if args.device == "cpu" else "_cuda"
+    path = write_json(args.out / f"fit_speed{suffix}.json", record)
     print(f"wrote {path}")
     return 0
 

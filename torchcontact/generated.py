@@ -127,13 +127,14 @@ def generate(
     count = int(rng.integers(PARTS[0], PARTS[1] + 1))
     parts = _parts(rng, count)
     shape = assemble(name(seed), parts, _box(rng), mass)
-    rested = _rest(shape, np.sort(_box(rng)))
+    sides = np.sort(_box(rng))
+    rested = _rest(shape, sides)
     largest = float(rng.uniform(*EXTENT))
     if extent is not None:
         largest = _positive("extent", extent)
     elif scale is not None:
         largest *= _positive("scale", scale)
-    obj = assemble(name(seed), rested.parts, rested.size * largest, mass)
+    obj = assemble(name(seed), rested.parts, _stretch(rested, sides) * largest, mass)
     hull = collision != "parts" and len(obj.parts) > 1
     return dataclasses.replace(obj, collide_hull=True) if hull else obj
 
@@ -192,30 +193,35 @@ def _primitive(kind: str, dims: np.ndarray, rng: np.random.Generator) -> np.ndar
 
 
 def _rest(obj: ObjectMesh, sides: np.ndarray) -> ObjectMesh:
-    """``obj`` turned onto one of its hull's stable faces and stretched to ``sides (3,)``
-    (sorted, largest 1): the most likely face (quasi-static rest probabilities about the
-    centre of mass) whose edges lie at least :data:`BASE_MARGIN` of the largest extent from
-    below the centre of mass once stretched; the face of the widest such margin when none does.
+    """``obj`` turned onto one of its hull's stable faces: the most likely one (quasi-static
+    rest probabilities about the centre of mass) whose edges lie at least :data:`BASE_MARGIN`
+    of the largest extent from below the centre of mass once the object is stretched to
+    ``sides (3,)`` (:func:`_stretch`); the face of the widest such margin when none does.
 
-    The sides go by rank onto the resting axes: an axis-aligned stretch keeps the resting face
-    horizontal and the centre of mass over it, and sets the aspect ratio exactly, but it moves
-    the face's edges relative to the extent, so the margin is judged after it."""
+    An axis-aligned stretch keeps the resting face horizontal and the centre of mass over it,
+    but moves the face's edges relative to the extent, so the margin is judged after it."""
     hull = convex(obj.vertices)
     transforms, probabilities = trimesh.poses.compute_stable_poses(hull, obj.centre_of_mass)
     candidates = []
     for index in np.argsort(-probabilities, kind="stable"):
         rotation = transforms[index][:3, :3]
         parts = tuple(convex(part.vertices @ rotation.T) for part in obj.parts)
-        size = _extents(parts)
-        stretched = assemble(obj.name, parts, sides[np.argsort(np.argsort(size))], obj.mass)
+        rested = assemble(obj.name, parts, _extents(parts), obj.mass)
+        stretched = assemble(obj.name, parts, _stretch(rested, sides), obj.mass)
         margin = _base_margin(stretched)
         if margin >= BASE_MARGIN * float(stretched.size.max()):
-            return stretched
-        candidates.append((margin, stretched))
-    margin, stretched = max(candidates, key=lambda candidate: candidate[0])
+            return rested
+        candidates.append((margin, rested))
+    margin, rested = max(candidates, key=lambda candidate: candidate[0])
     if not margin > 0:
         raise RuntimeError(f"{obj.name}: no face has its centre of mass over it")
-    return stretched
+    return rested
+
+
+def _stretch(rested: ObjectMesh, sides: np.ndarray) -> np.ndarray:
+    """The drawn ``sides (3,)`` (sorted) by rank onto ``rested``'s axes: the bounding box that
+    sets the aspect ratio exactly and keeps the longest side along the longest axis."""
+    return sides[np.argsort(np.argsort(rested.size))]
 
 
 def _base_margin(obj: ObjectMesh) -> float:
