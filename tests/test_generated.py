@@ -88,8 +88,8 @@ def test_the_family_is_not_one_shape(objects):
 
 
 def test_the_pinned_object_of_generator_version_1():
-    """Seed 1000 under GENERATOR_VERSION 1: a change of the family must bump the version (and
-    the scenes' version), so old records are rerun rather than compared with a new shape."""
+    """Seed 1000 under GENERATOR_VERSION 1: a change of what a seed draws must bump the version
+    (and the scenes' version), so old records are rerun rather than compared with a new shape."""
     if generated.GENERATOR_VERSION != 1:
         pytest.skip("pinned for GENERATOR_VERSION 1; pin the new version's object")
     obj = generate(1000)
