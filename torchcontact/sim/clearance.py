@@ -43,9 +43,7 @@ def robot_overlap(
 ) -> float:
     """[m] The deepest overlap of ``body`` with the bodies the joints ``joint_dofs`` carry, at
     ``data``'s configuration (0: none)."""
-    mujoco.mj_forward(model, data)
-    found = penetrations(model, data, body, robot_bodies(model, joint_dofs))
-    return max((-contact.dist for contact in found), default=0.0)
+    return _deepest(model, data, body, robot_bodies(model, joint_dofs))
 
 
 def robot_bodies(model: mujoco.MjModel, joint_dofs: np.ndarray) -> set[int]:
@@ -78,7 +76,7 @@ def clear_joints(
         joint_dofs: ``(n,)`` dof indices of the robot's hinge or slide joints.
 
     Returns:
-        The deepest penetration left [m] (:func:`robot_overlap`; 0 when cleared).
+        The deepest penetration left [m] (as :func:`robot_overlap`; 0 when cleared).
     """
     robot = robot_bodies(model, joint_dofs)
     joints = model.dof_jntid[joint_dofs]
@@ -107,7 +105,15 @@ def clear_joints(
         q = data.qpos[joint_qpos]
         q = q + _step(np.array(rows), np.array(gaps), q, limited, low, high, damping)
         data.qpos[joint_qpos] = np.where(limited, np.clip(q, low, high), q)
-    return robot_overlap(model, data, body, joint_dofs)
+    return _deepest(model, data, body, robot)
+
+
+def _deepest(model: mujoco.MjModel, data: mujoco.MjData, body: int, robot: set[int]) -> float:
+    """[m] The deepest overlap of ``body`` with ``robot`` at ``data``'s configuration (0: none),
+    after computing its kinematics and contacts."""
+    mujoco.mj_forward(model, data)
+    found = penetrations(model, data, body, robot)
+    return max((-contact.dist for contact in found), default=0.0)
 
 
 def _step(a, b, q, limited, low, high, damping) -> np.ndarray:
