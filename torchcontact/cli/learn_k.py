@@ -72,7 +72,7 @@ DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing
 """Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
 
 DEFAULT_OBJECTS = {
-    "trifinger": "all,random:0-29",
+    "trifinger": "all,random:0-99",
     "allegro": "all,random:0-29",
     "fingertips": "cube,stick,bunny",
 }
