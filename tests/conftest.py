@@ -26,3 +26,16 @@ def cuda_or_skip():
             marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device"),
         )
     ]
+
+
+def render_or_skip(env, width: int, height: int):
+    """``env.render(width, height)``, the test skipped where the machine has no OpenGL backend
+    for offscreen rendering (MuJoCo then fails to make a context: an AttributeError under
+    ``MUJOCO_GL=disable``, other errors for a missing EGL or OSMesa). A ValueError, the
+    environment's own argument check, is not a missing backend and fails the test."""
+    try:
+        return env.render(width, height)
+    except ValueError:
+        raise
+    except Exception as error:
+        pytest.skip(f"no OpenGL backend for offscreen rendering: {error}")

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from conftest import render_or_skip
 
 from torchcontact.objects import ObjectOptions
 from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
@@ -122,10 +123,7 @@ def test_user_mesh_object(tmp_path):
 
 def test_render_returns_an_image(cube_env):
     cube_env.reset(CUBE_REST, [0.05, 0.05, 0.03, 1, 0, 0, 0])
-    try:
-        image = cube_env.render(64, 48)
-    except Exception as error:  # no OpenGL backend on this machine
-        pytest.skip(f"no OpenGL backend for offscreen rendering: {error}")
+    image = render_or_skip(cube_env, 64, 48)
     assert image.shape == (48, 64, 3) and image.dtype == np.uint8
     assert image.std() > 1.0  # not a blank frame
 
