@@ -75,7 +75,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--object-mass", type=float, default=None, help="[kg]; the MPC models it")
     parser.add_argument("--object-friction", type=float, default=None, help="sliding μ")
-    parser.add_argument("--trials", type=int, default=TRIALS, help="seeds 0…trials−1")
+    parser.add_argument(
+        "--trials", type=int, default=TRIALS, help="seeds first-seed…first-seed+trials−1"
+    )
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="the first trial seed (default 0, the reported seeds; tune on others)",
+    )
     parser.add_argument("--max-steps", type=int, default=None, help="default: the task's")
     parser.add_argument(
         "--robot", type=Path, default=None, help="(custom) the robot's MJCF, attached to a scene"
@@ -219,6 +227,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.first_seed < 0:
+        parser.error(f"--first-seed must be >= 0, got {args.first_seed}")
     try:
         check_backend(args.workers, args.backend, args.address)
     except (ValueError, ImportError) as error:
@@ -316,7 +326,12 @@ def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
     names = [f.name for f in dataclasses.fields(TrialConfig) if f.name not in set_apart]
     options = {name: getattr(args, name) for name in names if hasattr(args, name)}
     return trial_configs(
-        args.env, args.pairs, range(args.trials), args.settings, args.max_steps, **options
+        args.env,
+        args.pairs,
+        range(args.first_seed, args.first_seed + args.trials),
+        args.settings,
+        args.max_steps,
+        **options,
     )
 
 

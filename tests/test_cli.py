@@ -56,6 +56,7 @@ def _refused(argv, capsys, job, option):
 
 
 RUN_ERRORS = [
+    (["--first-seed", "-1"], "--first-seed"),
     (["--stiffness", "inf"], "--stiffness"),
     (["--stiffness", "nan"], "--stiffness"),
     (["--learned", "{d}/notes.pt"], "--learned"),

@@ -108,6 +108,11 @@ def test_the_options_become_one_trial_config_per_seed_and_pair():
     assert configs[0].settings == balanced
 
 
+def test_first_seed_moves_the_seeds_off_the_reported_ones():
+    args = parse_args(["fingertips", "--task", "rotation", "--trials", "3", "--first-seed", "20"])
+    assert sorted({c.seed for c in configs_of(args)}) == [20, 21, 22]
+
+
 def test_each_model_has_its_own_variant_the_default_output_folder():
     """``main`` writes to results/VARIANT unless given ``--out``."""
     assert configs_of(parse_args(["fingertips"]))[0].variant == "fingertips"
