@@ -102,6 +102,8 @@ LEARN_K_ERRORS = [
     (["--noise", "-1"], "--noise"),
     (["--noise", "nan"], "--noise"),
     (["--distance-scale", "inf"], "--distance-scale"),
+    (["--gamma", "0"], "--gamma"),
+    (["--gamma", "nan"], "--gamma"),
     (["--sweep", "0.1", "inf", "4"], "--sweep"),
     (["--object", "teapot", "--scene", "fingertips"], "--object"),
     (["--task", "spin"], "--task"),

@@ -86,15 +86,19 @@ def test_bad_options_are_rejected(capsys):
 def test_tiny_learn_k_run_on_box_pushing(tmp_path):
     options = (
         "--scene box_pushing --trajectories 3 --steps 8 --horizon 3 --stride 2 "
-        "--sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress --splits 1"
+        "--sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress --splits 1 --gamma 300"
     )
     argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
     assert main([*argv, "--json", str(tmp_path / "headline.json")]) == 0
     headline = read_json(tmp_path / "headline.json")
     assert headline["transitions"] == 24
     assert all(math.isfinite(headline[key]) for key in HEADLINE)
-    _, _, meta = load_checkpoint(tmp_path / "box_pushing_cube" / "model.pt")
+    model, _, meta = load_checkpoint(tmp_path / "box_pushing_cube" / "model.pt")
     assert meta["actions"] == "random" and meta["joints"].count("free") == 10
+    # --gamma: the fitted model, and the checkpoint that rebuilds it, use that γ
+    assert meta["gamma"] == 300.0 and model.gamma == 300.0
+    data = tmp_path / "data" / "box_pushing_cube_random_steps8_seed0" / "manifest.json"
+    assert read_json(data)["gamma"] != 300.0  # the collected data are not rewritten
 
 
 def test_learn_k_refuses_mpc_actions_for_box_pushing(capsys):

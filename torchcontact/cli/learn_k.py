@@ -148,6 +148,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=1.0,
         help="weight of the robot's coordinates' squared error in the loss [1/rad² or 1/m²]",
     )
+    add(
+        "--gamma",
+        type=float,
+        default=None,
+        help="softplus sharpness γ of the fitted and compared models (default the scene's, "
+        "as its MPC plans)",
+    )
     add("--hidden", type=int, default=32, help="hidden units of the networks")
     add("--distance-scale", type=float, default=1e-4, help="φ feature scale [m]")
     add("--epochs", type=int, default=300)
@@ -193,6 +200,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--seed must be >= 0, got {args.seed}")
     if not 0 < args.distance_scale < math.inf:
         parser.error(f"--distance-scale must be positive and finite, got {args.distance_scale}")
+    if args.gamma is not None and not 0 < args.gamma < math.inf:
+        parser.error(f"--gamma must be positive and finite, got {args.gamma}")
     if args.noise is not None and not 0 <= args.noise < math.inf:
         parser.error(
             f"--noise must be a non-negative finite fraction of the control bound, got {args.noise}"
@@ -455,6 +464,8 @@ def run(args: argparse.Namespace) -> dict:
     """Collect, then per split sweep, fit and evaluate; returns the record written to
     results.json (the first split's model saved beside it)."""
     transitions = load_objects(collect_all(args), args.trajectories)
+    if args.gamma is not None:  # the data hold MuJoCo's motion, whatever γ the models use
+        transitions.meta["gamma"] = args.gamma
     detectors = {obj: make_scene(args.scene, obj, args.task).plant.detector for obj in args.objects}
     splits = []
     for index in tqdm(range(args.splits), desc="splits", disable=args.no_progress, unit="split"):
