@@ -198,10 +198,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--backend/--address/--workers: {error}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0, got {args.seed}")
-    if not 0 < args.distance_scale < math.inf:
-        parser.error(f"--distance-scale must be positive and finite, got {args.distance_scale}")
-    if args.gamma is not None and not 0 < args.gamma < math.inf:
-        parser.error(f"--gamma must be positive and finite, got {args.gamma}")
+    for name in ("distance_scale", "gamma"):  # gamma None: the scene's
+        value = getattr(args, name)
+        if value is not None and not 0 < value < math.inf:
+            parser.error(f"--{name.replace('_', '-')} must be positive and finite, got {value}")
     if args.noise is not None and not 0 <= args.noise < math.inf:
         parser.error(
             f"--noise must be a non-negative finite fraction of the control bound, got {args.noise}"
