@@ -140,6 +140,26 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     assert "splits by objects" in out and "calibrated constant k" in out
 
 
+def test_splits_fitted_in_parallel_match_a_serial_run(tmp_path):
+    options = (
+        "--scene trifinger --object cube,random-3,random-4 --trajectories 3 --steps 8 "
+        "--actions random --horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 "
+        "--splits 3 --no-progress"
+    )
+    records = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"workers{workers}"
+        argv = ["learn-k", *options.split(), "--workers", workers, "--data", str(tmp_path / "data")]
+        assert main([*argv, "--out", str(out)]) == 0
+        records.append(read_json(out / "trifinger_cube_random-3_random-4" / "results.json"))
+    for record in records:
+        for split in record["splits"]:
+            del split["fit_seconds"]  # the only figure that may differ
+    serial, parallel = (record["splits"] for record in records)
+    assert [split["seed"] for split in parallel] == [0, 1, 2]  # in split order
+    assert parallel == serial
+
+
 def test_objects_are_listed_once_in_order():
     args = parse_args(["--scene", "fingertips", "--object", "cube,stick,cube,bunny"])
     assert args.objects == ["cube", "stick", "bunny"] and args.split == "objects"

@@ -64,7 +64,7 @@ from torchcontact.model import paper_model
 from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.trials import file_sha256, library_versions
-from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
+from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend, parallel_map
 from torchcontact.results import atomic_write, write_csv, write_json
 from torchcontact.shipped import models_dir
 
@@ -123,7 +123,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     add("--noise", type=float, default=None, help="exploration noise, fraction of the bound")
     add("--no-compile", action="store_true", help="eager MPC while collecting")
-    add("--workers", type=int, default=1, help="parallel collection processes (or Ray CPUs)")
+    add(
+        "--workers",
+        type=int,
+        default=1,
+        help="parallel collection processes (or Ray CPUs), and splits fitted at a time (local "
+        "processes)",
+    )
     add("--backend", choices=BACKENDS, default="local", help=f"local or Ray ({RAY_EXTRA})")
     add("--address", default=None, help="(ray) a running cluster's address")
     add("--data", type=Path, default=None, help="folder of the datasets (default OUT/data)")
@@ -460,16 +466,71 @@ AVERAGED = (
 """Per-split figures the record gives as the mean over splits (and ``…_sd``)."""
 
 
+def load_transitions(directories: list[Path], args: argparse.Namespace):
+    """The datasets as one :class:`~torchcontact.learn.data.Transitions`, ``--gamma``'s γ in
+    its meta."""
+    transitions = load_objects(directories, args.trajectories)
+    if args.gamma is not None:  # the data hold MuJoCo's motion, whatever γ the models use
+        transitions.meta["gamma"] = args.gamma
+    return transitions
+
+
+def object_detectors(args: argparse.Namespace) -> dict:
+    """Each object's contact detector, by name."""
+    return {obj: make_scene(args.scene, obj, args.task).plant.detector for obj in args.objects}
+
+
+@dataclasses.dataclass(frozen=True)
+class _SplitJob:
+    """One split fitted in a worker process, which reads the datasets itself."""
+
+    directories: tuple[Path, ...]
+    seed: int
+    args: argparse.Namespace
+
+
+_loaded: dict[tuple, tuple] = {}
+"""A worker process's datasets, read once for all the splits it fits."""
+
+
+def _fit_split(job: _SplitJob) -> dict:
+    args = job.args
+    key = (job.directories, args.trajectories, args.gamma, args.scene, args.task)
+    if key not in _loaded:
+        _loaded.clear()
+        _loaded[key] = load_transitions(list(job.directories), args), object_detectors(args)
+    torch.set_num_threads(1)
+    return run_split(*_loaded[key], job.seed, args)
+
+
+def fit_splits(directories: list[Path], args: argparse.Namespace):
+    """The datasets' transitions and every split's :func:`run_split` record, in split order.
+
+    With ``--workers N`` above 1, N splits at a time are fitted in spawned local processes of
+    one thread each, each reading the datasets; every split is seeded, so the records match a
+    serial run's."""
+    transitions = load_transitions(directories, args)
+    seeds = [args.seed + index for index in range(args.splits)]
+    splits = [None] * len(seeds)
+    with tqdm(total=len(seeds), desc="splits", disable=args.no_progress, unit="split") as bar:
+        if args.workers == 1 or len(seeds) == 1:
+            detectors = object_detectors(args)
+            for index, seed in enumerate(seeds):
+                splits[index] = run_split(transitions, detectors, seed, args)
+                bar.update()
+            return transitions, splits
+        quiet = argparse.Namespace(**{**vars(args), "no_progress": True})  # one bar: this one
+        jobs = [_SplitJob(tuple(directories), seed, quiet) for seed in seeds]
+        for index, record in parallel_map(_fit_split, jobs, args.workers):
+            splits[index] = record
+            bar.update()
+    return transitions, splits
+
+
 def run(args: argparse.Namespace) -> dict:
     """Collect, then per split sweep, fit and evaluate; returns the record written to
     results.json (the first split's model saved beside it)."""
-    transitions = load_objects(collect_all(args), args.trajectories)
-    if args.gamma is not None:  # the data hold MuJoCo's motion, whatever γ the models use
-        transitions.meta["gamma"] = args.gamma
-    detectors = {obj: make_scene(args.scene, obj, args.task).plant.detector for obj in args.objects}
-    splits = []
-    for index in tqdm(range(args.splits), desc="splits", disable=args.no_progress, unit="split"):
-        splits.append(run_split(transitions, detectors, args.seed + index, args))
+    transitions, splits = fit_splits(collect_all(args), args)
     first = splits[0]
     args.results.mkdir(parents=True, exist_ok=True)
     save_checkpoint(args.results / "model.pt", first["model"], first["config"], transitions.meta)
