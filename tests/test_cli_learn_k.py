@@ -7,7 +7,7 @@ import torch
 
 from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
-from torchcontact.cli import main
+from torchcontact.cli import learn_k, main
 from torchcontact.cli.learn_k import parse_args
 from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
@@ -158,6 +158,28 @@ def test_splits_fitted_in_parallel_match_a_serial_run(tmp_path):
     serial, parallel = (record["splits"] for record in records)
     assert [split["seed"] for split in parallel] == [0, 1, 2]  # in split order
     assert parallel == serial
+
+
+def test_a_rerun_fits_only_the_splits_it_lacks(tmp_path, monkeypatch):
+    fitted = []
+    run_split = learn_k.run_split
+    monkeypatch.setattr(
+        learn_k, "run_split", lambda *a: fitted.append(a[2]) or run_split(*a), raising=True
+    )
+    options = (
+        "--scene trifinger --object cube --trajectories 3 --steps 8 --actions random "
+        "--horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress"
+    )
+    argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
+    results = tmp_path / "trifinger_cube" / "results.json"
+    assert main([*argv, "--splits", "2"]) == 0
+    first = read_json(results)["splits"]
+    assert main([*argv, "--splits", "3"]) == 0  # e.g. after a crash in the third split
+    assert fitted == [0, 1, 2]
+    assert read_json(results)["splits"][:2] == first  # fit_seconds included: not refitted
+    assert len(list((tmp_path / "trifinger_cube" / "splits").glob("*.pt"))) == 3
+    assert main([*argv, "--splits", "3", "--lr", "0.01"]) == 0  # another fit: all refitted
+    assert fitted == [0, 1, 2, 0, 1, 2]
 
 
 def test_objects_are_listed_once_in_order():

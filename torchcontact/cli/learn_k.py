@@ -12,8 +12,9 @@ The pipeline::
         evaluation = ... paper K, best K, learned      # 10-step rollouts on test objects
 
 Writes ``OUT/SCENE_OBJECTS/results.json`` (everything measured, per split),
-``model.pt`` (the first split's learned model, :func:`~torchcontact.checkpoint.load_checkpoint`)
-and ``history.csv`` (its losses per epoch); ``--json PATH`` writes the headline figures: the
+``model.pt`` (the first split's learned model, :func:`~torchcontact.checkpoint.load_checkpoint`),
+``history.csv`` (its losses per epoch) and ``splits/`` (each split's record as it finished,
+which a rerun with the same inputs reuses); ``--json PATH`` writes the headline figures: the
 improvement over the best constant K on held-out objects, mean and standard deviation over the
 splits. Errors are means over the test windows; the combined error is the MPC's
 ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)``.
@@ -47,6 +48,7 @@ from torchcontact.checkpoint import (
     save_checkpoint,
 )
 from torchcontact.cli import writable_directory, writable_file
+from torchcontact.cli.split_store import load_split, save_split, split_digest, split_path
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import MANIFEST, collect, load_objects
@@ -506,24 +508,34 @@ def _fit_split(job: _SplitJob) -> dict:
 def fit_splits(directories: list[Path], args: argparse.Namespace):
     """The datasets' transitions and every split's :func:`run_split` record, in split order.
 
-    With ``--workers N`` above 1, N splits at a time are fitted in spawned local processes of
-    one thread each, each reading the datasets; every split is seeded, so the records match a
-    serial run's."""
+    Each record is saved as its split finishes, and a rerun with the same inputs reuses the
+    saved ones (:mod:`~torchcontact.cli.split_store`). With ``--workers N`` above 1, N splits
+    at a time are fitted in spawned local processes of one thread each, each reading the
+    datasets; every split is seeded, so the records match a serial run's."""
     transitions = load_transitions(directories, args)
-    seeds = [args.seed + index for index in range(args.splits)]
-    splits = [None] * len(seeds)
-    with tqdm(total=len(seeds), desc="splits", disable=args.no_progress, unit="split") as bar:
-        if args.workers == 1 or len(seeds) == 1:
-            detectors = object_detectors(args)
-            for index, seed in enumerate(seeds):
-                splits[index] = run_split(transitions, detectors, seed, args)
-                bar.update()
+    digest = split_digest(args, directories)
+    paths = [split_path(args.results, args.seed + i, digest) for i in range(args.splits)]
+    splits = [load_split(path) for path in paths]
+    missing = [index for index, split in enumerate(splits) if split is None]
+    if len(missing) < len(splits):
+        reused = [split["seed"] for split in splits if split is not None]
+        print(f"splits {reused} reused from {paths[0].parent} (same options and data)")
+
+    def finished(index: int, record: dict) -> None:
+        save_split(paths[index], record)
+        splits[index] = record
+        bar.update()
+
+    with tqdm(total=len(missing), desc="splits", disable=args.no_progress, unit="split") as bar:
+        if args.workers == 1 or len(missing) <= 1:
+            detectors = object_detectors(args) if missing else None
+            for index in missing:
+                finished(index, run_split(transitions, detectors, args.seed + index, args))
             return transitions, splits
         quiet = argparse.Namespace(**{**vars(args), "no_progress": True})  # one bar: this one
-        jobs = [_SplitJob(tuple(directories), seed, quiet) for seed in seeds]
-        for index, record in parallel_map(_fit_split, jobs, args.workers):
-            splits[index] = record
-            bar.update()
+        jobs = [_SplitJob(tuple(directories), args.seed + index, quiet) for index in missing]
+        for job, record in parallel_map(_fit_split, jobs, args.workers):
+            finished(missing[job], record)
     return transitions, splits
 
 
