@@ -3,8 +3,9 @@
 Each split's record (its figures, fitted model, fit config and history) is saved as it
 finishes, atomically, under ``RESULTS/splits/``, in a file named by the split's seed and a
 digest of everything that decides it: the options that change the data, the fit or the
-evaluation, and the datasets' manifests. A rerun with the same inputs loads those records; any
-change of them gives other file names, so nothing stale is reused.
+evaluation, the versions of torchcontact, torch and MuJoCo, and the datasets' manifests. A
+rerun with the same inputs loads those records; any change of them gives other file names, so
+nothing stale is reused (a change of the library's code within one version is not seen).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 import torch
 
 from torchcontact.learn.data import MANIFEST
+from torchcontact.mpc.trials import library_versions
 from torchcontact.results import atomic_write
 
 NOT_DECIDING = (
@@ -30,8 +32,10 @@ digest."""
 
 
 def split_digest(args: argparse.Namespace, directories: list[Path]) -> str:
-    """Hex SHA-256 of the deciding options and the datasets' manifests, in order."""
+    """Hex SHA-256 of the deciding options, the library versions and the datasets' manifests,
+    in order."""
     options = {k: v for k, v in sorted(vars(args).items()) if k not in NOT_DECIDING}
+    options["versions"] = library_versions()
     digest = hashlib.sha256(json.dumps(options, sort_keys=True, default=str).encode())
     for directory in directories:
         digest.update((Path(directory) / MANIFEST).read_bytes())
