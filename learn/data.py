@@ -44,6 +44,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
+from torchcontact.integrate import JointLayout, difference
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
 from torchcontact.parallel import check_backend, parallel_map
@@ -77,7 +78,12 @@ def trajectory_file(index: int) -> str:
 
 def affine_system(system: QuasiDynamic) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``Q (nv,)``, ``b0 (nv,)`` and ``B (nv, nu)`` of ``system`` in float64:
-    ``b(u) = b0 + B·u``."""
+    ``b(u) = b0 + B·u``. A system carrying momentum has no such form and is refused."""
+    if getattr(system, "object_momentum", None) is not None:
+        raise ValueError(
+            "system must not carry object_momentum (its b depends on the object's last "
+            "displacement): pass the system without it, a calibration adds it to the model"
+        )
     u = torch.eye(system.n_robot, dtype=torch.float64)
     Q, b0 = system(torch.zeros_like(u[0]))
     _, b_unit = system(u)
@@ -516,6 +522,22 @@ class Transitions:
             raise ValueError(f"fractions {fractions} leave no training {what[:-1]} of {len(ids)}")
         groups = (ids[:n_train], ids[n_train : n_train + n_val], ids[n_train + n_val :])
         return tuple(self.select(torch.isin(key, torch.as_tensor(g))) for g in groups)
+
+    def previous_displacement(self) -> torch.Tensor:
+        """``(N, nv)`` each row's displacement over the step before it [m, rad]: ``h·v`` with
+        ``v`` the velocity that takes the previous row's state to this one's
+        (:func:`~torchcontact.integrate.difference`); zero at a trajectory's first step, or
+        where the previous step is not among the rows (the plants start at rest)."""
+        layout = JointLayout(self.meta["joints"])
+        displacement = torch.zeros(len(self), layout.nv, dtype=self.q.dtype)
+        if len(self) < 2:
+            return displacement
+        order = torch.argsort(self.trajectory * (int(self.step.max()) + 1) + self.step)
+        traj, step = self.trajectory[order], self.step[order]
+        follows = (traj[1:] == traj[:-1]) & (step[1:] - step[:-1] == 1)
+        rows, previous = order[1:][follows], order[:-1][follows]
+        displacement[rows] = difference(self.q[previous], self.q[rows], 1.0, layout)
+        return displacement
 
     def windows(self, horizon: int, stride: int = 1) -> torch.Tensor:
         """``(W, horizon)`` row indices of consecutive steps of one trajectory each, starting

@@ -22,6 +22,7 @@ from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import Transitions
 from torchcontact.learn.fit import (
     StepData,
+    carried,
     model_terms,
     object_indices,
     pose_errors,
@@ -104,6 +105,7 @@ def rollout_error(
     q_index, v_index = object_indices(meta["joints"])
     is_object = torch.zeros(layout.nq, dtype=torch.bool)
     is_object[q_index.flatten()] = True
+    object_rows = v_index.flatten()
     model = model.to(torch.float64)
     predicted, recorded = [], []
     for part, detector, (Q0, b0, B) in _object_parts(transitions, detectors):
@@ -111,12 +113,15 @@ def rollout_error(
         if len(windows) == 0:
             continue
         q = part.q[windows[:, 0]]
+        moved = part.previous_displacement()[windows[:, 0]][:, object_rows]
         with torch.no_grad(), validate_args(False):
             for t in range(horizon):
                 contacts = detector(q).to(torch.float64)
                 u = part.u[windows[:, t]]
-                Q, b = model_terms(model, Q0, b0, B, u, v_index.flatten())
+                Q, b = model_terms(model, Q0, b0, B, u, object_rows)
+                Q, b = carried(model, Q, b, moved, object_rows)
                 v = model(Q, b, contacts, meta["h"], q=q)
+                moved = meta["h"] * v[:, object_rows]
                 q = integrate(q, v, meta["h"], layout)
                 if robot == "recorded":
                     q = torch.where(is_object, q, part.q_next[windows[:, t]])

@@ -29,8 +29,8 @@ from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
 from torchcontact.learn.data import Transitions, affine_system
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_error
-from torchcontact.systems import QuasiDynamic
-from torchcontact.validation import validate_args
+from torchcontact.systems import QuasiDynamic, carry_momentum
+from torchcontact.validation import check_shape, validate_args
 
 
 def system_terms(meta: dict, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -72,6 +72,9 @@ class StepData:
             with B: ``(nv, nu)``, ``b(u) = b0 + B·u``.
         pose: ``(N, n_obj, 7)`` object poses at q; target: ``(N, H, n_obj, 7)`` recorded after
             each step.
+        displacement: ``(N, n_obj·6)`` the objects' displacement over the step before q [m,
+            rad] (:meth:`~torchcontact.learn.data.Transitions.previous_displacement`), for a
+            model whose calibration carries momentum.
         robot: ``(N, n_r)`` the robot's coordinates at q [m or rad]; robot_target:
             ``(N, H, n_r)`` recorded after each step.
         object_rows: ``(n_obj·6,)`` the objects' indices in v; robot_rows: ``(n_r,)`` the
@@ -87,6 +90,7 @@ class StepData:
     B: torch.Tensor
     pose: torch.Tensor
     target: torch.Tensor
+    displacement: torch.Tensor
     robot: torch.Tensor
     robot_target: torch.Tensor
     object_rows: torch.Tensor
@@ -110,6 +114,8 @@ class StepData:
         metric = torch.tensor([s["Q"] for s in systems], dtype=torch.float64)
         bias = torch.tensor([s["b0"] for s in systems], dtype=torch.float64)
         objects = transitions.object[first]
+        _, v_index = object_indices(meta["joints"])
+        moved = transitions.previous_displacement()[first][:, v_index.flatten()]
         return cls._build(
             transitions.q[first],
             transitions.contacts[first],
@@ -121,6 +127,7 @@ class StepData:
             float(meta["h"]),
             meta["joints"],
             dtype,
+            moved,
         )
 
     @classmethod
@@ -134,6 +141,7 @@ class StepData:
         h: float,
         joints: list[str],
         dtype: torch.dtype = torch.float32,
+        displacement: torch.Tensor | None = None,
     ) -> StepData:
         """Single steps from plain tensors: no dataset folder or manifest.
 
@@ -144,6 +152,9 @@ class StepData:
             system: the quasi-dynamic system ``u ↦ (Q, b)`` of the model.
             joints: joint types of q (``"free"`` for the object, see
                 :class:`~torchcontact.integrate.JointLayout`).
+            displacement: ``(N, nv)`` each state's displacement over the step before it [m,
+                rad] (``h`` times :func:`~torchcontact.integrate.difference`), for a model
+                that carries the object's momentum; None: every state at rest.
         """
         n = q.shape[0]
         for name, value in (("u", u), ("q_next", q_next)):
@@ -151,12 +162,21 @@ class StepData:
                 raise ValueError(f"{name} must have {n} rows like q, got {tuple(value.shape)}")
         if contacts.phi.shape[0] != n:
             raise ValueError(f"contacts must have {n} rows like q, got {contacts.phi.shape[0]}")
+        _, v_index = object_indices(joints)
+        if displacement is None:
+            moved = q.new_zeros(n, v_index.numel())
+        else:
+            nv = JointLayout(joints).nv
+            check_shape("displacement", displacement, f"({n}, {nv})", displacement.shape == (n, nv))
+            moved = displacement[:, v_index.flatten()]
         Q, b0, B = affine_system(system)  # float64 whatever the system's dtype
         rows = (q, contacts, u[:, None], q_next[:, None], Q.expand(n, -1), b0.expand(n, -1), B)
-        return cls._build(*rows, float(h), joints, dtype)
+        return cls._build(*rows, float(h), joints, dtype, moved)
 
     @classmethod
-    def _build(cls, q, contacts, u, q_next, metric, bias, B, h, joints, dtype) -> StepData:
+    def _build(
+        cls, q, contacts, u, q_next, metric, bias, B, h, joints, dtype, displacement
+    ) -> StepData:
         q_index, v_index = object_indices(joints)
         layout = JointLayout(joints)
         if any(j != "free" and JOINT_SIZES[j][0] != JOINT_SIZES[j][1] for j in layout.joints):
@@ -171,6 +191,7 @@ class StepData:
             B=B.to(dtype),
             pose=q[:, q_index].to(dtype),
             target=q_next[:, :, q_index].to(dtype),
+            displacement=displacement.to(dtype),
             robot=q[:, robot_q].to(dtype),
             robot_target=q_next[:, :, robot_q].to(dtype),
             object_rows=v_index.flatten(),
@@ -227,6 +248,15 @@ def model_terms(
     return model.calibration.terms(Q, b0, B, u, object_rows)
 
 
+def carried(model: ComplementarityFree, Q, b, displacement, object_rows):
+    """``Q, b`` with the object's momentum carried (:func:`~torchcontact.systems.carry_momentum`)
+    when the model's calibration has it, else as they are."""
+    momentum = None if model.calibration is None else model.calibration.momentum
+    if momentum is None:
+        return Q, b
+    return carry_momentum(Q, b, displacement, momentum.to(Q.dtype), object_rows)
+
+
 def step_terms(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
     """``Q (N, 1, nv)`` and ``b (N, H, nv)`` of the windows (:func:`model_terms`)."""
     metric, bias = data.metric[:, None], data.bias[:, None]
@@ -241,8 +271,10 @@ def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, t
     n_obj = data.pose.shape[-2]
     layout = JointLayout(["free"] * n_obj)
     pose, robot, poses, robots = data.pose.flatten(-2), data.robot, [], []
+    moved = data.displacement
     for t in range(data.horizon):
-        v = frozen.velocity(Q[:, 0], b[:, t])
+        v = frozen.velocity(*carried(model, Q[:, 0], b[:, t], moved, data.object_rows))
+        moved = data.h * v[:, data.object_rows]
         pose = integrate(pose, v[:, data.object_rows], data.h, layout)
         robot = robot + data.h * v[:, data.robot_rows]
         poses.append(pose.unflatten(-1, (n_obj, 7)))

@@ -5,7 +5,9 @@ At each real state: detect contacts once and freeze the model's step over the ho
 rows, ``gaps="propagated"``); let the planner minimize Σₜ c(qₜ, uₜ) + V(q_T) over u₀…u_{T−1}
 in their box (gradients by ``torch.func``); apply u₀; warm-start the next solve from the
 shifted plan. The contact model, the cost and the planner are each chosen by name or passed
-in; :meth:`ContactImplicitMPC.from_env` builds the MPC of an environment's plant.
+in; :meth:`ContactImplicitMPC.from_env` builds the MPC of an environment's plant. A system that
+carries the object's momentum (a fitted calibration's ``object_momentum``) is rolled out from
+the object's displacement between the last two states planned from.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from torchcontact.environments import costs
 from torchcontact.environments.base import Environment
 from torchcontact.environments.costs import Cost
 from torchcontact.environments.presets import GAPS, MPCSettings
-from torchcontact.integrate import JointLayout, integrate
+from torchcontact.integrate import JointLayout, difference, integrate
 from torchcontact.model import ContactModel, contact_model
 from torchcontact.mpc import planners
 from torchcontact.mpc.background import BackgroundCompile, graph_key
@@ -118,6 +120,8 @@ class ContactImplicitMPC:
         self.compiled = compile
         self._differentiate, self._objective = self._compiled()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
+        self._last_q: torch.Tensor | None = None  # the state of the previous plan, for momentum
+        self._object_rows = torch.tensor(system.object_dofs)
         background = compile and background_compile and hasattr(self.planner, "eager")
         self._background = BackgroundCompile() if background else None
         self._eager_planner = self.planner.eager() if background else None
@@ -188,8 +192,9 @@ class ContactImplicitMPC:
         )
 
     def reset(self) -> None:
-        """Forget the warm start (call between episodes)."""
+        """Forget the warm start and the last state (call between episodes)."""
         self._warm.zero_()
+        self._last_q = None
 
     def __getstate__(self) -> dict:
         """Pickled (for a background compile) without its compiled callables and child."""
@@ -227,13 +232,21 @@ class ContactImplicitMPC:
         compiled = self.compiled if compiled is None else compiled
         return self.model.freeze(contacts, self.h, q, compile=compiled)
 
-    def rollout(self, q0, controls, frozen) -> torch.Tensor:
+    @property
+    def carries_momentum(self) -> bool:
+        """Whether the system carries the object's momentum from step to step."""
+        return getattr(self.system, "object_momentum", None) is not None
+
+    def rollout(self, q0, controls, frozen, moved=None) -> torch.Tensor:
         """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
 
         The step ``frozen`` (:meth:`freeze`) stays frozen over the horizon, as does Q: so with
         frozen gaps each step's velocity depends on its own control only and all T are
-        computed at once; propagated gaps chain the steps through φ̃.
+        computed at once; propagated gaps chain the steps through φ̃, and a system carrying
+        momentum through the object's displacement, ``moved (n_o,)`` [m, rad] before q0.
         """
+        if self.carries_momentum:
+            return self._momentum_rollout(q0, controls, frozen, moved)
         Q, b = self.system(controls)
         states = [q0.expand(*controls.shape[:-2], -1)]
         if self.gaps == "propagated":
@@ -247,15 +260,27 @@ class ContactImplicitMPC:
             states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
         return torch.stack(states, dim=-2)
 
-    def objective(self, controls, q0, frozen, target_p, target_quat):
+    def _momentum_rollout(self, q0, controls, frozen, moved) -> torch.Tensor:
+        """:meth:`rollout` of a system carrying momentum: the steps chained through the
+        object's displacement (and φ̃ with propagated gaps)."""
+        states = [q0.expand(*controls.shape[:-2], -1)]
+        for t in range(self.horizon):
+            v = frozen.velocity(*self.system(controls[..., t, :], object_displacement=moved))
+            states.append(integrate(states[-1], v, self.h, self.layout))
+            moved = self.h * v[..., self._object_rows]
+            if self.gaps == "propagated":
+                frozen = frozen.advance_gaps(v)
+        return torch.stack(states, dim=-2)
+
+    def objective(self, controls, q0, frozen, target_p, target_quat, moved=None):
         """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`)."""
-        states = self.rollout(q0, controls, frozen)
+        states = self.rollout(q0, controls, frozen, moved)
         pose = self.layout.object_pose(states)
         tips = self.fingertips(states)
         return self.cost(pose[..., :3], pose[..., 3:], tips, controls, target_p, target_quat)
 
     def value_and_grad(
-        self, controls, q0, frozen, target_p, target_quat, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *moved, compiled: bool = True
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
 
@@ -264,16 +289,16 @@ class ContactImplicitMPC:
         """
         frozen = frozen.linearized(*self.system(controls))
         differentiate = self._differentiate if compiled else self.differentiate
-        return differentiate(controls, q0, frozen, target_p, target_quat)
+        return differentiate(controls, q0, frozen, target_p, target_quat, *moved)
 
     def value(
-        self, controls, q0, frozen, target_p, target_quat, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *moved, compiled: bool = True
     ) -> torch.Tensor:
         """Cost ``(B,)`` of ``controls (B, T, n_u)`` without its gradient (for sampling), the
         frozen step linearized as in :meth:`value_and_grad`."""
         frozen = frozen.linearized(*self.system(controls))
         objective = self._objective if compiled else self.objective
-        return objective(controls, q0, frozen, target_p, target_quat)
+        return objective(controls, q0, frozen, target_p, target_quat, *moved)
 
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
@@ -325,7 +350,8 @@ class ContactImplicitMPC:
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
-        inputs = (q, contacts, target_p, target_quat, self._warm.clone())
+        targets = (target_p, target_quat) + self._moved(q)
+        inputs = (q, contacts, targets, self._warm.clone())
         compiled = self.compiled
         if self._background is not None:
             warmup = functools.partial(self._solve, *inputs, compiled=True)  # for the child
@@ -343,8 +369,20 @@ class ContactImplicitMPC:
             compiled=compiled,
         )
 
-    def _solve(self, q, contacts, target_p, target_quat, warm, compiled: bool):
-        """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager."""
+    def _moved(self, q: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(moved,)``, the object's displacement from the previous plan's state to ``q``
+        (zero at an episode's first), when the system carries momentum; else ``()``."""
+        last, self._last_q = self._last_q, q
+        if not self.carries_momentum:
+            return ()
+        if last is None:
+            return (q.new_zeros(self._object_rows.numel()),)
+        return (difference(last, q, 1.0, self.layout)[self._object_rows],)
+
+    def _solve(self, q, contacts, targets, warm, compiled: bool):
+        """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
+        ``targets``: the target position and quaternion, then the object's displacement when
+        the system carries momentum (the objective's trailing arguments)."""
         with torch.no_grad():
             frozen = self.freeze(q, contacts, compiled)
         if compiled:
@@ -355,9 +393,8 @@ class ContactImplicitMPC:
             objective = Objective(self._flat_eager_value_and_grad, value=self._flat_eager_value)
             planner = self.planner if self._eager_planner is None else self._eager_planner
         with validate_args(False):
-            return planner.plan(
-                objective, warm, (self.lower, self.upper), args=(q, frozen, target_p, target_quat)
-            )
+            box, args = (self.lower, self.upper), (q, frozen, *targets)
+            return planner.plan(objective, warm, box, args=args)
 
     def _graph_key(self, contacts: Contacts) -> str:
         """What the compiled graph of a solve at ``contacts`` is specialised to (all but the

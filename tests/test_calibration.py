@@ -5,6 +5,7 @@ import dataclasses
 import pytest
 import torch
 
+from torchcontact import ComplementarityFree
 from torchcontact.calibration import PARTS, SystemCalibration
 from torchcontact.checkpoint import FitConfig, build_model, load_checkpoint, save_checkpoint
 from torchcontact.environments import environment
@@ -13,6 +14,7 @@ from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import affine_system, collect, load
 from torchcontact.learn.fit import (
     StepData,
+    carried,
     fit_steps,
     object_indices,
     predict_poses,
@@ -84,7 +86,9 @@ def _synthetic(transitions, stiffness: float, factors: dict):
             getattr(model.calibration, f"log_{name}").fill_(float(value)).log_()
     Q0, b0, B = (torch.tensor(meta["system"][k], dtype=torch.float64) for k in ("Q", "b0", "B"))
     _, v_index = object_indices(meta["joints"])
-    Q, b = model.calibration.terms(Q0, b0, B, transitions.u, v_index.flatten())
+    rows = v_index.flatten()
+    Q, b = model.calibration.terms(Q0, b0, B, transitions.u, rows)
+    Q, b = carried(model, Q, b, transitions.previous_displacement()[:, rows], rows)
     with torch.no_grad():
         v = model(Q, b, transitions.contacts.to(torch.float64), meta["h"])
     q_next = integrate(transitions.q, v, meta["h"], JointLayout(meta["joints"]))
@@ -112,6 +116,43 @@ def test_fit_recovers_known_stiffness_command_gain_and_object_metric(transitions
     assert model.calibration.factor("command_gain").detach() == pytest.approx(1.3, rel=0.05)
     assert model.calibration.factor("object_metric").item() == pytest.approx(2.0, rel=0.1)
     assert model.calibration.factor("robot_stiffness").detach() == pytest.approx(0.5, rel=0.25)
+
+
+def test_fit_recovers_a_known_object_momentum(transitions):
+    """The object carries m = 1.5 of its previous step's motion; the fit finds m and ε."""
+    true = {"object_metric": 2.0, "object_momentum": 1.5}
+    synthetic, _ = _synthetic(transitions, 2.5, true)
+    train, val, _ = synthetic.split(seed=0)
+    meta = {**synthetic.meta, "paper_stiffness": 2.5}
+    config = FitConfig(
+        stiffness="constant", damping="paper", calibrate=tuple(true), epochs=300,
+        batch_size=32, lr=0.03, patience=300,
+    )  # fmt: skip
+    model = build_model(config, meta)
+    model.stiffness.requires_grad_(False)
+    steps = [StepData.from_transitions(part, dtype=torch.float64) for part in (train, val)]
+    model = fit_steps(model, *steps, meta["pose_weights"], config, False).model
+    assert model.calibration.momentum.item() == pytest.approx(1.5, rel=0.1)
+    assert model.calibration.factor("object_metric").item() == pytest.approx(2.0, rel=0.1)
+
+
+def test_a_checkpoint_with_momentum_round_trips_and_the_mpc_carries_it(transitions, tmp_path):
+    factors = {**TRUE, "object_momentum": 0.7}
+    config = FitConfig(stiffness="constant", damping="paper", calibrate=tuple(factors))
+    _, model = _synthetic(transitions, 2.5, factors)
+    path = save_checkpoint(tmp_path / "model.pt", model.float(), config, transitions.meta)
+    loaded = load_checkpoint(path)[0]
+    assert loaded.calibration.learned == tuple(factors)
+    assert loaded.calibration.summary()["object_momentum"] == pytest.approx([0.7])
+    env = environment("trifinger")
+    mpc = ContactImplicitMPC.from_env(
+        env, env.make_plant("cube"), loaded, settings=MPCSettings(compile=False)
+    )
+    assert mpc.carries_momentum and float(mpc.system.object_momentum) == pytest.approx(0.7)
+    plain = ComplementarityFree(2.5, calibration=SystemCalibration(9))
+    settings = MPCSettings(compile=False)
+    plain_mpc = ContactImplicitMPC.from_env(env, env.make_plant("cube"), plain, settings=settings)
+    assert not plain_mpc.carries_momentum
 
 
 def test_multi_step_loss_rolls_out_the_frozen_contacts_as_the_mpc_does(transitions):

@@ -131,7 +131,7 @@ def test_multi_object_run_holds_out_whole_objects(tmp_path, capsys):
     model, config, meta = load_checkpoint(
         tmp_path / "trifinger_cube_random-3_random-4" / "model.pt"
     )
-    assert config.calibrate == PARTS
+    assert config.calibrate == (*PARTS, "object_momentum")  # the TriFinger's default
     assert config.loss_horizon == 2 and meta["objects"] == ["cube", "random-3", "random-4"]
     record = read_json(tmp_path / "trifinger_cube_random-3_random-4" / "results.json")
     assert math.isfinite(record["rollout10_err_calibrated_constant_k"])

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from torchcontact.environments.presets import MPCSettings
+from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn import data
 from torchcontact.learn.data import DataFormatError, collect, load, load_objects, read_manifest
 from torchcontact.learn.scenes import make_scene
@@ -74,6 +75,26 @@ def test_split_is_by_trajectory_and_windows_stay_inside_one(dataset):
     assert windows.shape == (6, 4)  # starts 0 and 2 of each 6-step trajectory
     assert bool((transitions.trajectory[windows] == transitions.trajectory[windows[:, :1]]).all())
     assert bool((torch.diff(transitions.step[windows], dim=1) == 1).all())
+
+
+def test_previous_displacement_is_zero_at_the_start_and_differences_the_states(dataset):
+    transitions = load(dataset)
+    layout = JointLayout(transitions.meta["joints"])
+    order = torch.randperm(len(transitions), generator=torch.Generator().manual_seed(0))
+    shuffled = transitions.select(order)  # rows in any order, as a split leaves them
+    moved = shuffled.previous_displacement()
+    assert moved.shape == (len(transitions), layout.nv)
+    first = shuffled.step == 0
+    assert bool((moved[first] == 0).all()) and bool(moved[~first].abs().sum(-1).gt(0).all())
+    for row in torch.nonzero(~first).flatten()[:5].tolist():
+        before = (shuffled.trajectory == shuffled.trajectory[row]) & (
+            shuffled.step == shuffled.step[row] - 1
+        )
+        previous = int(torch.nonzero(before).flatten()[0])
+        after = integrate(shuffled.q[previous], moved[row], 1.0, layout)
+        torch.testing.assert_close(after, shuffled.q[row])
+    alone = shuffled.select(~first)  # a row whose previous step is not among the rows: at rest
+    assert bool((alone.previous_displacement()[alone.step == 1] == 0).all())
 
 
 def test_collection_resumes_after_an_interruption(tmp_path, monkeypatch):

@@ -9,13 +9,14 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchcontact import AnitescuQP
+from torchcontact import AnitescuQP, ComplementarityFree
+from torchcontact.calibration import SystemCalibration
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.costs import ManipulationCost
 from torchcontact.environments.fingertips import CONTROL_BOUND
 from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.functional import cf_velocity
-from torchcontact.integrate import integrate
+from torchcontact.integrate import difference, integrate
 from torchcontact.model import contact_model
 from torchcontact.mpc import background
 from torchcontact.mpc.controller import CONTACT_BUCKET, ContactImplicitMPC
@@ -93,6 +94,59 @@ def test_rollout_equals_stepping_the_model(env, model, request):
             v = mpc.model(Q, bias, contacts, mpc.h, q)
             state = integrate(state, v, mpc.h, mpc.layout)
             torch.testing.assert_close(states[b, t + 1], state)
+
+
+def _momentum_mpc(env, momentum=1.5, **options):
+    """The fingertips' MPC with a model whose calibration carries the object's momentum."""
+    calibration = SystemCalibration(9, ("object_momentum",)).double()
+    with torch.no_grad():
+        calibration.log_object_momentum.fill_(math.log(momentum))
+    model = ComplementarityFree(FINGERTIPS.default_stiffness, calibration=calibration)
+    return _mpc(env, model, max_iter=5, **options)
+
+
+@pytest.mark.parametrize("gaps", GAPS)
+def test_a_momentum_rollout_chains_the_objects_displacement(env, gaps):
+    mpc = _momentum_mpc(env, gaps=gaps)
+    assert mpc.carries_momentum and float(mpc.system.object_momentum) == pytest.approx(1.5)
+    q, contacts = _touching_state(env)
+    step = mpc.freeze(q, contacts)
+    controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
+    moved = torch.tensor([0.003, -0.002, 0.0, 0.0, 0.0, 0.05], dtype=DT)
+    states = mpc.rollout(q, controls, step, moved)
+    rows = mpc.system.object_dofs
+    state, displacement = q.expand(2, -1), moved
+    for t in range(mpc.horizon):
+        v = step.velocity(*mpc.system(controls[:, t], object_displacement=displacement))
+        state = integrate(state, v, mpc.h, mpc.layout)
+        displacement = mpc.h * v[:, rows]
+        torch.testing.assert_close(states[:, t + 1], state)
+        if gaps == "propagated":
+            step = step.advance_gaps(v)
+    at_rest = mpc.rollout(q, controls, mpc.freeze(q, contacts))
+    assert not torch.allclose(states[:, 1], at_rest[:, 1])
+
+
+def test_the_mpc_plans_from_the_objects_last_displacement(env):
+    """The first plan of an episode sees the object at rest; the next one the displacement
+    between the two states it planned from; reset forgets it."""
+    mpc = _momentum_mpc(env)
+    q, contacts = _touching_state(env)
+    moved_q = q.clone()
+    moved_q[:2] += torch.tensor([0.002, -0.001], dtype=DT)
+    for start, expected in ((q, torch.zeros(6, dtype=DT)), (moved_q, None)):
+        plan = mpc.plan(start, contacts, *TARGET)
+        if expected is None:
+            expected = difference(q, moved_q, 1.0, mpc.layout)[mpc.system.object_dofs]
+        with torch.no_grad():
+            frozen = mpc.freeze(start, contacts)
+            cost = mpc.objective(plan.controls[None], start, frozen, *TARGET, expected)
+        assert float(cost[0]) == pytest.approx(plan.cost, rel=1e-9)
+    mpc.reset()
+    plan = mpc.plan(moved_q, contacts, *TARGET)
+    with torch.no_grad():
+        cost = mpc.objective(plan.controls[None], moved_q, mpc.freeze(moved_q, contacts), *TARGET)
+    assert float(cost[0]) == pytest.approx(plan.cost, rel=1e-9)
 
 
 def test_propagated_gaps_follow_the_models_own_motion(env):

@@ -10,6 +10,7 @@ from torchcontact.rotations import (
     quaternion_angle,
     quaternion_error,
     quaternion_exp,
+    quaternion_log,
     quaternion_multiply,
     quaternion_to_matrix,
     up_axis,
@@ -115,3 +116,15 @@ def test_finite_gradients_at_identity():
         assert all(g is None or torch.isfinite(g).all() for g in grads)
     (grad,) = torch.autograd.grad(quaternion_exp(rotation)[1:].sum(), rotation)
     torch.testing.assert_close(grad, torch.full((3,), 0.5, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_log_inverts_exp_taking_the_shorter_rotation(dtype):
+    quats = _quats(64, dtype=dtype, seed=3)
+    rotation = quaternion_log(quats)
+    assert (torch.linalg.vector_norm(rotation, dim=-1) <= math.pi + 1e-5).all()
+    back = quaternion_exp(rotation)
+    torch.testing.assert_close(quaternion_error(back, quats), torch.zeros(64, dtype=dtype))
+    torch.testing.assert_close(quaternion_log(-quats), rotation)  # q and −q: one rotation
+    small = torch.tensor([[1e-9, -2e-9, 3e-9]], dtype=torch.float64)
+    torch.testing.assert_close(quaternion_log(quaternion_exp(small)), small)

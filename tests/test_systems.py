@@ -10,6 +10,7 @@ from torchcontact import (
     Contacts,
     JointLayout,
     QuasiDynamic,
+    carry_momentum,
     cf_velocity,
     full_dynamic,
     integrate,
@@ -78,6 +79,30 @@ def test_free_motion_moves_the_robot_by_u_and_drops_the_object():
     torch.testing.assert_close(q_next[0] - q[0], u[0], rtol=1e-12, atol=0)
     torch.testing.assert_close(q_next[[3, 10]] - q[[3, 10]], torch.full((2,), fall).double())
     torch.testing.assert_close(q_next[4:8], q[4:8])
+
+
+def test_momentum_blends_the_free_step_with_the_previous_displacement():
+    """Free: the object moves by ``(Δ_quasi + m·Δ_prev)/(1 + m)``; the robot as before."""
+    base = bar_and_cubes(2)
+    m = 3.0
+    system = QuasiDynamic(
+        base.object_metric, KR, base.object_force, object_dofs=range(1, 13), n_robot=1,
+        object_momentum=m,
+    )  # fmt: skip
+    u = torch.tensor([[0.002], [-0.001]], dtype=torch.float64)
+    previous = torch.randn(2, 12, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    quasi = H * _free_step(base, u)
+    Q, b = system(u, object_displacement=previous)
+    moved = b / Q
+    torch.testing.assert_close(moved[:, 0], quasi[:, 0])
+    torch.testing.assert_close(moved[:, 1:], (quasi[:, 1:] + m * previous) / (1 + m))
+    Q_rest, b_rest = system(u)  # at rest: the same metric, nothing carried
+    torch.testing.assert_close(Q_rest, Q)
+    torch.testing.assert_close((b_rest / Q_rest)[:, 1:], quasi[:, 1:] / (1 + m))
+    Q_none, b_none = carry_momentum(*base(u), previous, 0.0, torch.arange(1, 13))
+    torch.testing.assert_close((Q_none, b_none), base(u))
+    with pytest.raises(ValueError, match="object_momentum must be >= 0"):
+        QuasiDynamic(torch.ones(6), 1.0, torch.zeros(6), n_robot=1, object_momentum=-0.5)
 
 
 def test_free_motion_through_the_contact_model_with_empty_contacts():

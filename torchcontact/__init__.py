@@ -38,7 +38,7 @@ from torchcontact.stiffness import (
     parameterization,
     register_parameterization,
 )
-from torchcontact.systems import GRAVITY, QuasiDynamic, full_dynamic
+from torchcontact.systems import GRAVITY, QuasiDynamic, carry_momentum, full_dynamic
 from torchcontact.validation import set_validate_args, validate_args
 
 __all__ = [
@@ -60,6 +60,7 @@ __all__ = [
     "RelaxedQP",
     "Relative",
     "StateNetwork",
+    "carry_momentum",
     "cf_multipliers",
     "cf_velocity",
     "contact_model",

@@ -9,7 +9,11 @@ uncorrected system:
 - ``command_gain (n_r,)``: the robot moves by ``gain ⊙ u`` (a first-order lag of the command);
 - ``robot_stiffness (n_r,)``: scales Kᵣ, how far contact forces push the robot off its command;
 - ``object_metric ()``: scales the object metric εMₒ/h² (how readily the object moves);
-- ``friction ()``: scales every contact's μ.
+- ``friction ()``: scales every contact's μ;
+- ``object_momentum ()``, optional (:data:`OPTIONAL`): the weight m of the object's previous
+  step's motion in the next, which carries m/(1 + m) of it
+  (:func:`~torchcontact.systems.carry_momentum`); the quasi-dynamic step has none, so the
+  factor exists only when learned, starting at m = 0.5.
 
 A :class:`~torchcontact.model.ComplementarityFree` model holding one applies the friction
 factor to its contacts itself; the MPC and the rollouts plan with :meth:`apply`'s system.
@@ -17,6 +21,7 @@ factor to its contacts itself; the MPC and the rollouts plan with :meth:`apply`'
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -26,7 +31,14 @@ from torchcontact.contacts import Contacts
 from torchcontact.systems import QuasiDynamic
 
 PARTS = ("command_gain", "robot_stiffness", "object_metric", "friction")
-"""The factors a calibration can fit (``learn-k --calibrate``)."""
+"""The factors every calibration holds (``learn-k --calibrate``)."""
+
+MOMENTUM = "object_momentum"
+OPTIONAL = (MOMENTUM,)
+"""Factors a calibration holds only when it learns them (no value of theirs is the
+uncorrected system)."""
+
+INITIAL_MOMENTUM = 0.5
 
 
 class SystemCalibration(nn.Module):
@@ -34,23 +46,33 @@ class SystemCalibration(nn.Module):
 
     Args:
         n_robot: the robot's DoF count (the size of ``command_gain`` and ``robot_stiffness``).
-        learn: the factors that are learnable (a subset of :data:`PARTS`); the others stay 1.
-            All four live in ``state_dict`` either way, so a checkpoint rebuilds the same
-            module.
+        learn: the factors that are learnable (a subset of :data:`PARTS` and
+            :data:`OPTIONAL`); the other parts stay 1. All four parts live in ``state_dict``
+            either way, the optional ones when learned, so a checkpoint and its fit's
+            ``learn`` rebuild the same module.
     """
 
     def __init__(self, n_robot: int, learn: Sequence[str] = PARTS):
         super().__init__()
         if isinstance(n_robot, bool) or not isinstance(n_robot, int) or n_robot < 1:
             raise ValueError(f"n_robot must be a positive integer, got {n_robot!r}")
-        unknown = [name for name in learn if name not in PARTS]
+        unknown = [name for name in learn if name not in PARTS + OPTIONAL]
         if unknown:
-            raise ValueError(f"learn must name factors of {PARTS}, got {list(learn)}")
+            raise ValueError(f"learn must name factors of {PARTS + OPTIONAL}, got {list(learn)}")
         sizes = {"command_gain": n_robot, "robot_stiffness": n_robot}
         for name in PARTS:
             log = nn.Parameter(torch.zeros(sizes.get(name, 1)), requires_grad=name in learn)
             self.register_parameter(f"log_{name}", log)
+        if MOMENTUM in learn:
+            initial = torch.full((1,), math.log(INITIAL_MOMENTUM))
+            self.log_object_momentum = nn.Parameter(initial)
         self.n_robot = n_robot
+
+    @property
+    def momentum(self) -> torch.Tensor | None:
+        """The object's momentum factor m ``(1,)``, or None when the calibration has none."""
+        log = getattr(self, f"log_{MOMENTUM}", None)
+        return None if log is None else log.exp()
 
     def factor(self, name: str) -> torch.Tensor:
         """The positive factor ``name`` of :data:`PARTS`: ``(n_r,)`` or ``(1,)``."""
@@ -61,7 +83,9 @@ class SystemCalibration(nn.Module):
     @property
     def learned(self) -> tuple[str, ...]:
         """The learnable factors."""
-        return tuple(n for n in PARTS if getattr(self, f"log_{n}").requires_grad)
+        logs = dict(self.named_parameters())
+        names = [n for n in PARTS + OPTIONAL if f"log_{n}" in logs]
+        return tuple(n for n in names if logs[f"log_{n}"].requires_grad)
 
     def terms(
         self, Q: torch.Tensor, b0: torch.Tensor, B: torch.Tensor, u: torch.Tensor, object_rows
@@ -101,6 +125,7 @@ class SystemCalibration(nn.Module):
                 system.object_force,
                 object_dofs=system.object_dofs,
                 command_gain=gain,
+                object_momentum=None if self.momentum is None else self.momentum.to(metric),
             )
 
     def contacts(self, contacts: Contacts) -> Contacts:
@@ -110,7 +135,10 @@ class SystemCalibration(nn.Module):
 
     def summary(self) -> dict[str, list[float]]:
         """The factors' values, by name (for manifests and printing)."""
-        return {name: self.factor(name).detach().cpu().tolist() for name in PARTS}
+        summary = {name: self.factor(name).detach().cpu().tolist() for name in PARTS}
+        if self.momentum is not None:
+            summary[MOMENTUM] = self.momentum.detach().cpu().tolist()
+        return summary
 
     def extra_repr(self) -> str:
         return f"n_robot={self.n_robot}, learned={self.learned}"

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from torchcontact.calibration import PARTS, SystemCalibration
+from torchcontact.calibration import OPTIONAL, PARTS, SystemCalibration
 from torchcontact.model import ComplementarityFree
 from torchcontact.networks import ObjectContactNetwork
 from torchcontact.results import atomic_write
@@ -61,7 +61,7 @@ class FitConfig:
         patience: stop after this many epochs without a better validation loss.
         seed: seed of the initialization and the batch order.
         calibrate: the system factors fitted with K and D (a subset of
-            :data:`~torchcontact.calibration.PARTS`); empty: none, the model has no
+            :data:`~torchcontact.calibration.PARTS` and ``OPTIONAL``); empty: none, the model has no
             calibration.
         loss_horizon: steps of the training loss: 1 the one-step pose error, H > 1 the mean
             pose error over H steps rolled out with the contacts frozen at the window's first
@@ -95,10 +95,10 @@ class FitConfig:
         ):
             raise ValueError(f"initial_stiffness must be positive, got {self.initial_stiffness!r}")
         object.__setattr__(self, "calibrate", tuple(self.calibrate))
-        unknown = [part for part in self.calibrate if part not in PARTS]
+        unknown = [part for part in self.calibrate if part not in PARTS + OPTIONAL]
         if unknown or len(set(self.calibrate)) != len(self.calibrate):
             raise ValueError(
-                f"calibrate must name distinct factors of {PARTS}, got {self.calibrate}"
+                f"calibrate must name distinct factors of {PARTS + OPTIONAL}, got {self.calibrate}"
             )
         for name in ("hidden", "epochs", "batch_size", "patience", "loss_horizon"):
             value = getattr(self, name)

@@ -7,7 +7,7 @@ from collections.abc import Mapping, Sequence
 import torch
 
 from torchcontact.functional import Scalar
-from torchcontact.rotations import quaternion_exp, quaternion_multiply
+from torchcontact.rotations import quaternion_exp, quaternion_log, quaternion_multiply
 from torchcontact.validation import (
     check_broadcasts_to,
     check_finite,
@@ -197,3 +197,27 @@ def integrate(q: torch.Tensor, v: torch.Tensor, h: Scalar, layout: JointLayout) 
     batch = torch.broadcast_shapes(linear.shape[:-1], rotated.shape[:-2])
     pieces = torch.cat([linear.expand(*batch, -1), rotated.expand(*batch, -1, -1).flatten(-2)], -1)
     return pieces[..., layout.assemble.to(device)]
+
+
+def difference(q0: torch.Tensor, q1: torch.Tensor, h: Scalar, layout: JointLayout) -> torch.Tensor:
+    """The velocity ``v: (..., nv)`` that :func:`integrate` takes from ``q0`` to ``q1`` (both
+    ``(..., nq)``) in ``h`` [s]: linear coordinates ``(q1 − q0)/h``, quaternions the
+    body-frame ``log(q0⁻¹ ⊗ q1)/h`` (the shorter rotation). MuJoCo's ``mj_differentiatePos``.
+    """
+    _check_integrate_inputs(q0, q0.new_zeros(layout.nv), h, layout)
+    check_tensor("q1", q1)
+    check_shape("q1", q1, f"(..., {layout.nq})", q1.dim() >= 1 and q1.shape[-1] == layout.nq)
+    check_finite("q1", q1)
+    device = q0.device
+    linear_q, quat_q = layout.linear_q.to(device), layout.quat_q.to(device)
+    linear = (q1[..., linear_q] - q0[..., linear_q]) / h
+    start, end = q0[..., quat_q], q1[..., quat_q]
+    inverse = start * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=start.dtype, device=device)
+    relative = quaternion_multiply(inverse, end)
+    relative = relative / torch.linalg.vector_norm(relative, dim=-1, keepdim=True)
+    angular = quaternion_log(relative).flatten(-2) / h
+    batch = torch.broadcast_shapes(linear.shape[:-1], angular.shape[:-1])
+    v = torch.zeros(*batch, layout.nv, dtype=linear.dtype, device=device)
+    v[..., layout.linear_v.to(device)] = linear.expand(*batch, -1)
+    v[..., layout.angular_v.flatten().to(device)] = angular.expand(*batch, -1)
+    return v

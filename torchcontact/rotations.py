@@ -33,6 +33,19 @@ def quaternion_exp(rotation: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.cos(0.5 * angle), rotation * half_sinc], dim=-1)
 
 
+def quaternion_log(quat: torch.Tensor) -> torch.Tensor:
+    """Rotation vector ``(..., 3)`` [rad] of unit ``quat: (..., 4)``, the inverse of
+    :func:`quaternion_exp`: the shorter of the two rotations ``q`` and ``−q`` describe, so its
+    angle is at most π."""
+    quat = torch.where(quat[..., :1] < 0, -quat, quat)
+    vector = quat[..., 1:]
+    sine = torch.linalg.vector_norm(vector, dim=-1, keepdim=True)
+    angle = 2 * torch.atan2(sine, quat[..., :1])
+    # angle/sin(θ/2) → 2 as the rotation vanishes; the guarded ratio keeps the gradient finite
+    ratio = torch.where(sine > 1e-12, angle / sine.clamp_min(1e-12), torch.full_like(sine, 2.0))
+    return vector * ratio
+
+
 def quaternion_to_matrix(quat: torch.Tensor) -> torch.Tensor:
     """Rotation matrix ``R (..., 3, 3)`` of ``quat: (..., 4)``, of any non-zero length.
 

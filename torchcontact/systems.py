@@ -46,10 +46,14 @@ class QuasiDynamic(nn.Module):
         command_gain: ``(n_r,)`` positive g, the fraction of its command the robot covers in
             one step unopposed (a fitted :class:`~torchcontact.calibration.SystemCalibration`
             sets it); None: 1.
+        object_momentum: m ≥ 0, the weight of the object's previous step's motion in the
+            next (:func:`carry_momentum`; a fitted calibration sets it); None: none.
 
-    Call: ``system(u, robot_force=None)`` with ``u: (..., n_r)`` the robot's commanded
-    displacement [m or rad] and ``robot_force: (..., n_r)`` τᵣ; returns ``Q: (nv,)`` and
-    ``b: (..., nv)``. Raises ``ValueError`` naming ``u`` or ``robot_force`` when it holds NaN
+    Call: ``system(u, robot_force=None, object_displacement=None)`` with ``u: (..., n_r)``
+    the robot's commanded displacement [m or rad], ``robot_force: (..., n_r)`` τᵣ and
+    ``object_displacement: (..., n_o)`` the object's over the previous step [m, rad] (used
+    with ``object_momentum`` only; None: at rest); returns ``Q: (nv,)`` and ``b: (..., nv)``.
+    Raises ``ValueError`` naming ``u`` or ``robot_force`` when it holds NaN
     or Inf.
     """
 
@@ -61,6 +65,7 @@ class QuasiDynamic(nn.Module):
         object_dofs: Sequence[int] | None = None,
         n_robot: int | None = None,
         command_gain=None,
+        object_momentum=None,
     ):
         super().__init__()
         metric = _vector("object_metric", object_metric)
@@ -91,6 +96,11 @@ class QuasiDynamic(nn.Module):
             command_gain = _vector("command_gain", command_gain, n_r)
             check_positive("command_gain", command_gain)
         self.register_buffer("command_gain", command_gain)
+        if object_momentum is not None:
+            object_momentum = _vector("object_momentum", object_momentum, 1)
+            if bool((object_momentum < 0).any()):
+                raise ValueError(f"object_momentum must be >= 0, got {object_momentum.tolist()}")
+        self.register_buffer("object_momentum", object_momentum)
         self.n_object, self.n_robot = n_o, n_r
 
     @property
@@ -106,7 +116,12 @@ class QuasiDynamic(nn.Module):
         """``Q: (nv,)`` the diagonal metric."""
         return torch.cat([self.object_metric, self.robot_stiffness])[self._from_blocks]
 
-    def forward(self, u: torch.Tensor, robot_force: torch.Tensor | None = None):
+    def forward(
+        self,
+        u: torch.Tensor,
+        robot_force: torch.Tensor | None = None,
+        object_displacement: torch.Tensor | None = None,
+    ):
         check_tensor("u", u)
         check_shape("u", u, f"(..., {self.n_robot})", u.dim() >= 1 and u.shape[-1] == self.n_robot)
         check_finite("u", u)
@@ -119,7 +134,47 @@ class QuasiDynamic(nn.Module):
             robot = robot + robot_force
         obj = self.object_force.to(robot.dtype).expand(*robot.shape[:-1], self.n_object)
         b = torch.cat([obj, robot], dim=-1)[..., self._from_blocks]
-        return self.metric().to(b.dtype), b
+        Q = self.metric().to(b.dtype)
+        if self.object_momentum is None:
+            return Q, b
+        rows = self._from_blocks.new_tensor(self.object_dofs)
+        return carry_momentum(Q, b, object_displacement, self.object_momentum, rows)
+
+
+def carry_momentum(
+    Q: torch.Tensor,
+    b: torch.Tensor,
+    displacement: torch.Tensor | None,
+    momentum: torch.Tensor,
+    object_rows,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A quasi-dynamic step that carries part of the object's previous motion.
+
+    The object's rows become ``Q'ₒ = (1 + m)Qₒ`` and ``b'ₒ = bₒ + m·Qₒ·Δₒ``, with Δₒ the
+    object's displacement over the previous step; so a free object moves by ``(Δ_quasi +
+    m·Δₒ)/(1 + m)``: the quasi-static step blended with the previous one, a momentum the
+    quasi-static metric εMₒ/h² has no room for (a tipping or falling object keeps moving).
+    ``m = 0`` is the quasi-dynamic step.
+
+    Args:
+        Q: ``(..., nv)`` the diagonal metric; b: ``(..., nv)``.
+        displacement: ``(..., n_o)`` Δₒ = h·vₒ, the object's velocity over the previous step
+            times the step [m, rad] in the rows ``object_rows``; None: at rest.
+        momentum: m ≥ 0, a float or a ``(1,)`` tensor.
+        object_rows: the object's indices in v (a long tensor).
+
+    Returns ``Q' (..., nv)`` and ``b' (..., nv)``.
+    """
+    rows = torch.as_tensor(object_rows, device=Q.device)
+    momentum = torch.as_tensor(momentum, dtype=Q.dtype, device=Q.device)
+    scale = torch.ones(Q.shape[-1], dtype=Q.dtype, device=Q.device)
+    scale = scale.index_put((rows,), 1 + momentum)
+    if displacement is None:
+        return Q * scale, b
+    push = momentum * Q[..., rows] * displacement
+    batch = torch.broadcast_shapes(b.shape[:-1], push.shape[:-1])
+    b = b.expand(*batch, -1).index_add(-1, rows, push.expand(*batch, -1))
+    return Q * scale, b
 
 
 def full_dynamic(

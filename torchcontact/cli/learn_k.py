@@ -38,7 +38,7 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from torchcontact.calibration import PARTS
+from torchcontact.calibration import MOMENTUM, OPTIONAL, PARTS
 from torchcontact.checkpoint import (
     DAMPING_KINDS,
     STIFFNESS_KINDS,
@@ -82,8 +82,10 @@ DEFAULT_OBJECTS = {
 tuning objects (seeds below 1000, so the reported generated objects stay unseen); the
 fingertips' objects whose model shares h = 0.1 s (the foam brick's has 0.05 s)."""
 
-DEFAULT_CALIBRATE = PARTS
-"""The system factors fitted by default: all four (measured best with μ, docs/experiments.md)."""
+DEFAULT_CALIBRATE = {"trifinger": PARTS + (MOMENTUM,)}
+"""The system factors fitted by default, by scene: the four parts (measured best with μ,
+docs/experiments.md), and on the TriFinger the object's momentum too (measured there: its
+objects tip; elsewhere not measured in closed loop)."""
 
 MODELS = ("paper_k", "best_constant_k", "learned")
 LABELS = {"paper_k": "paper K", "best_constant_k": "best constant K", "learned": "learned"}
@@ -146,8 +148,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--damping", choices=DAMPING_KINDS, default="contact_network", help="D(q)")
     add(
         "--calibrate",
-        default=",".join(DEFAULT_CALIBRATE),
-        help=f"system factors fitted with K and D, comma-separated from {PARTS}, or 'none'",
+        default=None,
+        help=f"system factors fitted with K and D, comma-separated from {PARTS + OPTIONAL}, "
+        f"or 'none' (default {','.join(PARTS)}, and {MOMENTUM} on the TriFinger)",
     )
     add("--loss-horizon", type=int, default=1, help="steps of the training loss's rollouts")
     add(
@@ -218,7 +221,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(f"--device must be cpu or cuda, got {args.device!r}")
     if args.device != "cpu" and not torch.cuda.is_available():
         parser.error(f"--device {args.device}: this machine has no CUDA device")
-    args.calibrate = () if args.calibrate == "none" else tuple(args.calibrate.split(","))
+    if args.calibrate is None:
+        args.calibrate = DEFAULT_CALIBRATE.get(args.scene, PARTS)
+    else:
+        args.calibrate = () if args.calibrate == "none" else tuple(args.calibrate.split(","))
     _check_fit_options(parser, args)
     _check_scene(parser, args)
     args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
