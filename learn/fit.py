@@ -2,7 +2,8 @@
 
 The model is the scene's :class:`~torchcontact.model.ComplementarityFree` with learnable
 sub-modules: K and D, and a :class:`~torchcontact.calibration.SystemCalibration` (the robot's
-command gain and stiffness, the object metric ε, μ) when one is fitted. The loss is the object
+command gain and stiffness, the object metric ε, μ, optionally the object's momentum) when one
+is fitted. The loss is the object
 pose error against MuJoCo, weighted as in the MPC's final cost, ``w_p‖p − p*‖² + w_q(1 −
 ⟨q, q*⟩²)`` (the paper's w_p = 500 or 100, w_q = 5): after one step, or the mean over H steps
 rolled out with the contacts frozen at each window's first state, as the MPC plans
@@ -412,10 +413,12 @@ def fit(
     weights: tuple[float, float] = (500.0, 5.0),
     val_fraction: float = 0.2,
     progress: bool = True,
+    displacement: torch.Tensor | None = None,
 ) -> FitResult:
     """Fit ``model`` to transitions given as plain tensors: no dataset folder or manifest.
 
-    See :meth:`StepData.from_tensors` for the arguments; a random ``val_fraction`` of the rows
+    See :meth:`StepData.from_tensors` for the arguments (``displacement`` for a model whose
+    calibration carries the object's momentum); a random ``val_fraction`` of the rows
     (seeded by ``config.seed``) is held out for early stopping; ``weights``: the pose loss's
     (w_p, w_q). The loss is one-step: a ``config.loss_horizon`` above 1 needs consecutive
     rows, :meth:`StepData.from_transitions` and :func:`fit_steps`.
@@ -425,7 +428,9 @@ def fit(
         raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction!r}")
     if config.loss_horizon != 1:
         raise ValueError(f"config.loss_horizon must be 1 for plain rows, got {config.loss_horizon}")
-    data = StepData.from_tensors(q, u, q_next, contacts, system, h, joints)
+    data = StepData.from_tensors(
+        q, u, q_next, contacts, system, h, joints, displacement=displacement
+    )
     order = torch.randperm(len(data), generator=torch.Generator().manual_seed(config.seed))
     held = max(1, int(round(val_fraction * len(data))))
     if held >= len(data):

@@ -81,6 +81,14 @@ def test_plain_tensors_give_the_datasets_step_and_recover_a_known_stiffness(tran
     stored = StepData.from_transitions(transitions)
     for field in ("q", "u", "metric", "bias", "B", "pose", "target", "object_rows"):
         torch.testing.assert_close(getattr(plain, field), getattr(stored, field))
+    moved = transitions.previous_displacement()[order]
+    with_motion = StepData.from_tensors(
+        *(row[order] for row in rows), system, meta["h"], meta["joints"], displacement=moved
+    )
+    torch.testing.assert_close(with_motion.displacement, stored.displacement)
+    assert bool((plain.displacement == 0).all())  # no displacement given: at rest
+    with pytest.raises(ValueError, match="displacement"):
+        StepData.from_tensors(*rows, system, 0.1, meta["joints"], displacement=moved[:, :3])
     synthetic = _synthetic(transitions, 2.5)
     config = FitConfig(
         stiffness="constant", damping="paper", epochs=150, batch_size=64, lr=0.05, patience=150
