@@ -3,14 +3,14 @@
 The model is the scene's :class:`~torchcontact.model.ComplementarityFree` with learnable
 sub-modules: K and D, and a :class:`~torchcontact.calibration.SystemCalibration` (the robot's
 command gain and stiffness, the object metric ε, μ, optionally the object's momentum) when one
-is fitted. The loss is the object
-pose error against MuJoCo, weighted as in the MPC's final cost, ``w_p‖p − p*‖² + w_q(1 −
-⟨q, q*⟩²)`` (the paper's w_p = 500 or 100, w_q = 5): after one step, or the mean over H steps
-rolled out with the contacts frozen at each window's first state, as the MPC plans
-(:class:`StepData` holds the windows). Adam on mini-batches, early stopping on a validation
-set, the best state kept. :func:`fit` takes plain tensors; :func:`fit_steps` takes prepared
-windows. :mod:`torchcontact.checkpoint` stores the fitted model with the
-:class:`~torchcontact.checkpoint.FitConfig` and dataset metadata that rebuild it.
+is fitted. The loss is the object pose error against MuJoCo, weighted as in the MPC's final
+cost, ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` (the paper's w_p = 500 or 100, w_q = 5): after one
+step, or the mean over H steps rolled out with the contacts frozen at each window's first
+state, as the MPC plans (:class:`StepData` holds the windows). Adam on mini-batches, early
+stopping on a validation set, the best state kept. :func:`fit` takes plain tensors;
+:func:`fit_steps` takes prepared windows. :mod:`torchcontact.checkpoint` stores the fitted
+model with the :class:`~torchcontact.checkpoint.FitConfig` and dataset metadata that rebuild
+it.
 """
 
 from __future__ import annotations
