@@ -15,6 +15,7 @@ from torchcontact import (
     full_dynamic,
     integrate,
 )
+from torchcontact.validation import validate_args
 
 H, EPS, KR, G = 0.02, 40.0, 500.0, 9.8
 CUBE_MASS, CUBE_INERTIA = 0.01, 6e-6
@@ -224,3 +225,19 @@ def test_non_finite_commands_name_themselves():
         system(torch.tensor([[0.01], [float("nan")]], dtype=torch.float64))
     with pytest.raises(ValueError, match="^robot_force must be finite"):
         system(torch.zeros(1, dtype=torch.float64), torch.tensor([float("inf")]))
+
+
+def test_a_system_carrying_momentum_traces_without_a_graph_break():
+    """The MPC compiles its rollout, which calls the system at every step: the object's rows
+    must not be derived per call from tensor data (a break would split the graph each time)."""
+    system = QuasiDynamic([1e4] * 3, 1e4, [0.0, 0.0, -9.81], n_robot=1, object_momentum=1.5)
+    system = system.double()
+
+    def total(u, moved):
+        Q, b = system(u, object_displacement=moved)
+        return (Q * b).sum()
+
+    with validate_args(False):
+        args = (torch.ones(1, dtype=torch.float64), torch.ones(3, dtype=torch.float64))
+        explained = torch._dynamo.explain(total)(*args)
+    assert explained.graph_break_count == 0

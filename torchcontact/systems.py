@@ -92,6 +92,9 @@ class QuasiDynamic(nn.Module):
         self.register_buffer("robot_stiffness", stiffness)
         self.register_buffer("object_force", _vector("object_force", object_force, n_o))
         self.register_buffer("_from_blocks", torch.argsort(order), persistent=False)
+        # the object's rows in v, kept as a tensor: deriving them per call (argsort, tolist)
+        # would break a compiled rollout's graph at every step
+        self.register_buffer("_object_rows", torch.tensor(object_dofs), persistent=False)
         if command_gain is not None:
             command_gain = _vector("command_gain", command_gain, n_r)
             check_positive("command_gain", command_gain)
@@ -110,7 +113,7 @@ class QuasiDynamic(nn.Module):
     @property
     def object_dofs(self) -> list[int]:
         """The object's velocity indices in v."""
-        return torch.argsort(self._from_blocks)[: self.n_object].tolist()
+        return self._object_rows.tolist()
 
     def metric(self) -> torch.Tensor:
         """``Q: (nv,)`` the diagonal metric."""
@@ -137,8 +140,7 @@ class QuasiDynamic(nn.Module):
         Q = self.metric().to(b.dtype)
         if self.object_momentum is None:
             return Q, b
-        rows = self._from_blocks.new_tensor(self.object_dofs)
-        return carry_momentum(Q, b, object_displacement, self.object_momentum, rows)
+        return carry_momentum(Q, b, object_displacement, self.object_momentum, self._object_rows)
 
 
 def carry_momentum(
