@@ -25,13 +25,13 @@ from torchcontact.environments.base import Environment
 from torchcontact.environments.costs import Cost
 from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.integrate import JointLayout, difference, integrate
-from torchcontact.model import ContactModel, contact_model
+from torchcontact.model import ComplementarityFree, ContactModel, contact_model
 from torchcontact.mpc import planners
 from torchcontact.mpc.background import BackgroundCompile, graph_key
 from torchcontact.mpc.planners import LBFGS, Objective, Planner
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import QuasiDynamic
-from torchcontact.validation import check_shape, validate_args
+from torchcontact.validation import check_finite, check_shape, validate_args
 
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
@@ -118,7 +118,7 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
-        self._differentiate, self._objective = self._compiled()
+        self._differentiate, self._objective, self._freeze = self._compiled()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
         self._last_q: torch.Tensor | None = None  # the state of the previous plan, for momentum
         self._object_rows = torch.tensor(system.object_dofs)
@@ -199,21 +199,27 @@ class ContactImplicitMPC:
     def __getstate__(self) -> dict:
         """Pickled (for a background compile) without its compiled callables and child."""
         state = self.__dict__.copy()
-        state.update(_differentiate=None, _objective=None, _background=None)
+        state.update(_differentiate=None, _objective=None, _freeze=None, _background=None)
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._differentiate, self._objective = self._compiled()
+        self._differentiate, self._objective, self._freeze = self._compiled()
 
-    def _compiled(self) -> tuple[Callable, Callable]:
-        """:meth:`differentiate` and :meth:`objective`, through ``torch.compile`` when the MPC
-        compiles (the objective alone serves sampling planners, which need no gradient)."""
+    def _compiled(self) -> tuple[Callable, Callable, Callable | None]:
+        """:meth:`differentiate`, :meth:`objective` and the closed form's freeze, through
+        ``torch.compile`` when the MPC compiles (the objective alone serves sampling planners,
+        which need no gradient; a freeze is plain tensor algebra for the closed form only, whose
+        K(q), D(q) networks are some 40 small operations eagerly)."""
         if not self.compiled:
-            return self.differentiate, self.objective
+            return self.differentiate, self.objective, None
+        freeze = None
+        if isinstance(self.model, ComplementarityFree):
+            freeze = torch.compile(self.model.freeze, dynamic=False, fullgraph=True)
         return (
             torch.compile(self.differentiate, dynamic=False),
             torch.compile(self.objective, dynamic=False),
+            freeze,
         )
 
     @property
@@ -230,6 +236,8 @@ class ContactImplicitMPC:
         """The model's step frozen at the contacts detected at ``q (nq,)``; its inner
         iterations compiled as ``compiled`` (default: as the MPC)."""
         compiled = self.compiled if compiled is None else compiled
+        if compiled and self._freeze is not None:
+            return self._freeze(contacts, self.h, q)
         return self.model.freeze(contacts, self.h, q, compile=compiled)
 
     @property
@@ -272,15 +280,19 @@ class ContactImplicitMPC:
                 frozen = frozen.advance_gaps(v)
         return torch.stack(states, dim=-2)
 
-    def objective(self, controls, q0, frozen, target_p, target_quat, moved=None):
-        """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`)."""
+    def objective(self, controls, q0, frozen, target_p, target_quat, previous=None):
+        """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`);
+        ``previous (nq,)``: the state planned from before ``q0`` when the system carries
+        momentum (the object's displacement to ``q0`` is worked out here, inside the traced
+        graph, not by a dozen small eager operations per solve)."""
+        moved = None if previous is None else self.displacement(previous, q0)
         states = self.rollout(q0, controls, frozen, moved)
         pose = self.layout.object_pose(states)
         tips = self.fingertips(states)
         return self.cost(pose[..., :3], pose[..., 3:], tips, controls, target_p, target_quat)
 
     def value_and_grad(
-        self, controls, q0, frozen, target_p, target_quat, *moved, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *previous, compiled: bool = True
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
 
@@ -289,16 +301,16 @@ class ContactImplicitMPC:
         """
         frozen = frozen.linearized(*self.system(controls))
         differentiate = self._differentiate if compiled else self.differentiate
-        return differentiate(controls, q0, frozen, target_p, target_quat, *moved)
+        return differentiate(controls, q0, frozen, target_p, target_quat, *previous)
 
     def value(
-        self, controls, q0, frozen, target_p, target_quat, *moved, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *previous, compiled: bool = True
     ) -> torch.Tensor:
         """Cost ``(B,)`` of ``controls (B, T, n_u)`` without its gradient (for sampling), the
         frozen step linearized as in :meth:`value_and_grad`."""
         frozen = frozen.linearized(*self.system(controls))
         objective = self._objective if compiled else self.objective
-        return objective(controls, q0, frozen, target_p, target_quat, *moved)
+        return objective(controls, q0, frozen, target_p, target_quat, *previous)
 
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
@@ -346,11 +358,21 @@ class ContactImplicitMPC:
         """Solve the MPC problem at state ``q (nq,)`` with the contacts detected there, toward
         ``target_p (3,)`` [m], ``target_quat (4,)``."""
         check_shape("q", q, f"({self.layout.nq},)", q.shape == (self.layout.nq,))
+        check_finite("q", q)
+        check_shape("target_p", target_p, "(3,)", target_p.shape == (3,))
+        check_shape("target_quat", target_quat, "(4,)", target_quat.shape == (4,))
         start = time.perf_counter()
+        # inputs checked above (contacts when built): what plan derives from them is not
+        # checked again (each value check is a host sync inside a solve of a few ms)
+        with validate_args(False):
+            return self._plan(q, contacts, target_p, target_quat, start)
+
+    def _plan(self, q, contacts, target_p, target_quat, start: float) -> Plan:
+        """:meth:`plan` after its checks; ``start``: its ``time.perf_counter()``."""
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
-        targets = (target_p, target_quat) + self._moved(q)
+        targets = (target_p, target_quat) + self._previous(q)
         inputs = (q, contacts, targets, self._warm.clone())
         compiled = self.compiled
         if self._background is not None:
@@ -369,19 +391,22 @@ class ContactImplicitMPC:
             compiled=compiled,
         )
 
-    def _moved(self, q: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``(moved,)``, the object's displacement from the previous plan's state to ``q``
-        (zero at an episode's first), when the system carries momentum; else ``()``."""
+    def displacement(self, previous: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """The object's displacement ``(..., n_o)`` [m, rad] from ``previous`` to ``q`` (both
+        ``(..., nq)``): its velocity rows of :func:`difference` over a unit step."""
+        return difference(previous, q, 1.0, self.layout)[..., self._object_rows]
+
+    def _previous(self, q: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(previous,)``, the state the last plan started from (``q`` itself at an episode's
+        first: no displacement), when the system carries momentum; else ``()``."""
         last, self._last_q = self._last_q, q
         if not self.carries_momentum:
             return ()
-        if last is None:
-            return (q.new_zeros(self._object_rows.numel()),)
-        return (difference(last, q, 1.0, self.layout)[self._object_rows],)
+        return (q if last is None else last,)
 
     def _solve(self, q, contacts, targets, warm, compiled: bool):
         """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
-        ``targets``: the target position and quaternion, then the object's displacement when
+        ``targets``: the target position and quaternion, then the previous plan's state when
         the system carries momentum (the objective's trailing arguments)."""
         with torch.no_grad():
             frozen = self.freeze(q, contacts, compiled)

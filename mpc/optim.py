@@ -218,9 +218,10 @@ def lbfgs_box(
         raise ValueError("compile_fun needs compile_steps=True and batched_trials=True")
     fun = _Bound(fun, tuple(args))
     step = _compiled_step() if compile_steps else _step
-    start_fun = functools.partial(_compiled_evaluate(), fun.fun, fun.args) if compile_fun else fun
-    state = _start(start_fun, x0, memory, settings)
-    trials, predicted = _propose(state, settings)
+    start = _compiled_start() if compile_fun else _start
+    state, trials, predicted, finite = start(fun.fun, fun.args, x0, memory, settings)
+    if not bool(finite):
+        raise ValueError("fun returned NaN or Inf at x0 (f and grad must be finite in the box)")
 
     per_call = ROUNDS_PER_CALL if compile_fun else 1
     for done in range(0, max_iter if bool(state.running.any()) else 0, per_call):
@@ -296,11 +297,6 @@ def _rounds(
     return state, trials, predicted, torch.stack([finite, flags[1]])
 
 
-def _evaluate(fun: Callable, args: tuple, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``fun(x, *args)``, for ``compile_fun``'s start (:func:`_start` checks the outputs)."""
-    return fun(x, *args)
-
-
 TRACED_FUN_OPTIONS = {"cpp_wrapper": True, "post_grad_fusion_options": {"decompose_mm_pass": {}}}
 """Inductor options of the graphs that trace ``fun`` (``compile_fun``). A traced objective's
 graph is large but its tensors tiny, so a call costs more in the generated Python wrapper
@@ -355,25 +351,30 @@ def _compiled_rounds() -> Callable:
 
 
 @functools.cache
-def _compiled_evaluate() -> Callable:
-    """:func:`_evaluate` compiled: the start's evaluation of a traced ``fun``."""
-    return _traced(_evaluate)
+def _compiled_start() -> Callable:
+    """:func:`_start` compiled, ``fun`` traced into it: with ``compile_fun`` the start, its
+    bookkeeping and the first round's trials are one call, not a call and some 60 small
+    eager operations."""
+    return _traced(_start)
 
 
-def _start(fun: Fun, x0: torch.Tensor, memory: int, settings: _Settings) -> _State:
-    """Evaluate the projected start and set up an empty memory."""
+def _start(
+    fun: Callable, args: tuple, x0: torch.Tensor, memory: int, settings: _Settings
+) -> tuple[_State, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Evaluate ``fun(·, *args)`` at the projected start and set up an empty memory. Returns
+    the state, the first round's trials and predicted decrease (:func:`_propose`) and a 0-d
+    bool: whether ``fun``'s outputs were finite (checked by the caller, after the one host
+    sync)."""
     lower, upper = settings.lower, settings.upper
     x = _project(x0, lower, upper)
-    f, grad = _call(fun, x)
-    if not bool(_finite(f, grad)):
-        raise ValueError("fun returned NaN or Inf at x0 (f and grad must be finite in the box)")
+    f, grad = _call(_Bound(fun, args), x)
     projected_grad = _project(x - grad, lower, upper) - x
     free = projected_grad != 0
     pg_norm = projected_grad.abs().amax(-1)
     converged = pg_norm <= settings.tol_grad
     n_problems, n_vars = x.shape
     counts = torch.zeros(n_problems, dtype=torch.int64, device=x.device)
-    return _State(
+    state = _State(
         x=x,
         f=f,
         grad=grad,
@@ -388,6 +389,7 @@ def _start(fun: Fun, x0: torch.Tensor, memory: int, settings: _Settings) -> _Sta
         n_iter=counts,
         n_evals=counts + 1,
     )
+    return (state, *_propose(state, settings), _finite(f, grad))
 
 
 def _step(

@@ -102,7 +102,7 @@ def _momentum_mpc(env, momentum=1.5, **options):
     with torch.no_grad():
         calibration.log_object_momentum.fill_(math.log(momentum))
     model = ComplementarityFree(FINGERTIPS.default_stiffness, calibration=calibration)
-    return _mpc(env, model, max_iter=5, **options)
+    return _mpc(env, model, **{"max_iter": 5, **options})
 
 
 @pytest.mark.parametrize("gaps", GAPS)
@@ -134,14 +134,20 @@ def test_the_mpc_plans_from_the_objects_last_displacement(env):
     q, contacts = _touching_state(env)
     moved_q = q.clone()
     moved_q[:2] += torch.tensor([0.002, -0.001], dtype=DT)
-    for start, expected in ((q, torch.zeros(6, dtype=DT)), (moved_q, None)):
+    assert torch.equal(mpc.displacement(q, q), torch.zeros(6, dtype=DT))  # exactly at rest
+    torch.testing.assert_close(
+        mpc.displacement(q, moved_q),
+        difference(q, moved_q, 1.0, mpc.layout)[mpc.system.object_dofs],
+    )
+    for start, previous in ((q, q), (moved_q, q)):
         plan = mpc.plan(start, contacts, *TARGET)
-        if expected is None:
-            expected = difference(q, moved_q, 1.0, mpc.layout)[mpc.system.object_dofs]
         with torch.no_grad():
             frozen = mpc.freeze(start, contacts)
-            cost = mpc.objective(plan.controls[None], start, frozen, *TARGET, expected)
+            cost = mpc.objective(plan.controls[None], start, frozen, *TARGET, previous)
+            moved = mpc.displacement(previous, start)
+            states = mpc.rollout(start, plan.controls[None], frozen, moved)
         assert float(cost[0]) == pytest.approx(plan.cost, rel=1e-9)
+        assert not torch.equal(states, mpc.rollout(start, plan.controls[None], frozen, moved + 1))
     mpc.reset()
     plan = mpc.plan(moved_q, contacts, *TARGET)
     with torch.no_grad():
@@ -312,18 +318,26 @@ def test_warm_start_is_the_shifted_plan(env, mpc):
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
-@pytest.mark.parametrize("gaps", GAPS)
-def test_compiled_plan_matches_the_eager_plan(env, gaps):
-    """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call):
-    the same plans as eager, plan after warm-started plan."""
+@pytest.mark.parametrize(
+    "gaps, momentum", [("frozen", False), ("propagated", False), ("frozen", True)]
+)
+def test_compiled_plan_matches_the_eager_plan(env, gaps, momentum):
+    """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call),
+    the start into a call of its own and the closed form's freeze into another: the same
+    plans as eager, plan after warm-started plan, from a moving object when the model carries
+    its momentum (the displacement worked out inside the traced graph)."""
     q, contacts = _touching_state(env)
     options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
-    eager = _mpc(env, **options)
-    compiled = ContactImplicitMPC.from_env(
-        FINGERTIPS, env, settings=MPCSettings(compile=True, **options)
-    )
+    eager = _momentum_mpc(env, **options) if momentum else _mpc(env, **options)
+    settings = MPCSettings(compile=True, **options)
+    compiled = ContactImplicitMPC.from_env(FINGERTIPS, env, eager.model, settings=settings)
     assert compiled.compiled and compiled.planner.compile
-    for _ in range(3):
+    assert compiled.carries_momentum == momentum
+    for a, b in zip(compiled.freeze(q, contacts), eager.freeze(q, contacts), strict=True):
+        assert a == b if not torch.is_tensor(a) else torch.equal(a, b)
+    for step in range(3):
+        q = q.clone()
+        q[:2] += 0.001 * step  # the object moves between plans
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0

@@ -169,12 +169,12 @@ class Contacts:
     def _unchecked(cls, values: dict[str, torch.Tensor | None]) -> Contacts:
         """Contacts from fields known to be consistent (derived from valid contacts)."""
         contacts = object.__new__(cls)
-        for field in fields(cls):
-            object.__setattr__(contacts, field.name, values.get(field.name))
+        for name in _FIELD_NAMES:
+            object.__setattr__(contacts, name, values.get(name))
         return contacts
 
     def _fields(self) -> dict[str, torch.Tensor | None]:
-        return {field.name: getattr(self, field.name) for field in fields(self)}
+        return {name: getattr(self, name) for name in _FIELD_NAMES}
 
     def __getitem__(self, index) -> Contacts:
         """The contacts at ``index`` of the batch dimensions ``...``, as in ``phi[index]``.
@@ -329,6 +329,10 @@ class Contacts:
         normal = beta.sum(-1)
         friction = self.mu.unsqueeze(-1) * (beta @ directions)
         return normal, friction
+
+
+_FIELD_NAMES = tuple(field.name for field in fields(Contacts))
+"""The field names of :class:`Contacts`, in order (``fields()`` is not traced by Dynamo)."""
 
 
 def _present(contacts: Contacts) -> list[str]:

@@ -183,10 +183,12 @@ def sample_on_palm(plant: HandEnv, task: str, seed: int):
 
 TRIFINGER_PRESETS = {
     "fast": MPCSettings(horizon=2),
-    "balanced": MPCSettings(max_iter=15, dtype="float32"),
+    "balanced": MPCSettings(max_iter=15, dtype="float32", horizon=3),
     "accurate": MPCSettings(horizon=6),
 }
-"""TriFinger's solver presets on its measured front (README "Choosing settings")."""
+"""TriFinger's solver presets on its measured front (README "Choosing settings"); ``balanced``
+plans T = 3 steps ahead since its model carries the object's momentum (measured on tuning
+objects, docs/experiments.md "TriFinger and Allegro MPC")."""
 
 ALLEGRO_PRESETS = {**TRIFINGER_PRESETS, "balanced": MPCSettings(dtype="float32")}
 """The Allegro's presets: TriFinger's, ``balanced`` the paper's in float32 (the Allegro was not
