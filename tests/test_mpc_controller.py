@@ -318,29 +318,41 @@ def test_warm_start_is_the_shifted_plan(env, mpc):
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
-@pytest.mark.parametrize(
-    "gaps, momentum", [("frozen", False), ("propagated", False), ("frozen", True)]
-)
-def test_compiled_plan_matches_the_eager_plan(env, gaps, momentum):
+@pytest.mark.parametrize("gaps", GAPS)
+def test_compiled_plan_matches_the_eager_plan(env, gaps):
     """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call),
     the start into a call of its own and the closed form's freeze into another: the same
-    plans as eager, plan after warm-started plan, from a moving object when the model carries
-    its momentum (the displacement worked out inside the traced graph)."""
+    freeze bit for bit, and the same plans as eager, plan after warm-started plan."""
     q, contacts = _touching_state(env)
     options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
-    eager = _momentum_mpc(env, **options) if momentum else _mpc(env, **options)
-    settings = MPCSettings(compile=True, **options)
-    compiled = ContactImplicitMPC.from_env(FINGERTIPS, env, eager.model, settings=settings)
+    eager = _mpc(env, **options)
+    compiled = ContactImplicitMPC.from_env(
+        FINGERTIPS, env, settings=MPCSettings(compile=True, **options)
+    )
     assert compiled.compiled and compiled.planner.compile
-    assert compiled.carries_momentum == momentum
     for a, b in zip(compiled.freeze(q, contacts), eager.freeze(q, contacts), strict=True):
         assert a == b if not torch.is_tensor(a) else torch.equal(a, b)
-    for step in range(3):
-        q = q.clone()
-        q[:2] += 0.001 * step  # the object moves between plans
+    for _ in range(3):
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_a_traced_objective_works_out_the_objects_displacement_as_eager(env):
+    """With momentum the objective takes the previous plan's state and works the object's
+    displacement out itself, which the MPC traces into its compiled graphs."""
+    mpc = _momentum_mpc(env, horizon=2)
+    q, contacts = _touching_state(env)
+    previous = q.clone()
+    previous[:2] -= torch.tensor([0.002, -0.001], dtype=DT)
+    frozen = mpc.freeze(q, contacts)
+    controls = 0.003 * torch.randn(3, 2, 9, dtype=DT, generator=torch.Generator().manual_seed(0))
+    traced = torch.compile(mpc.objective, dynamic=False, fullgraph=True)
+    cost = traced(controls, q, frozen, *TARGET, previous)
+    torch.testing.assert_close(cost, mpc.objective(controls, q, frozen, *TARGET, previous))
+    at_rest = mpc.objective(controls, q, frozen, *TARGET, q)
+    assert not torch.allclose(cost, at_rest)  # the displacement changes the plan's cost
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
