@@ -210,7 +210,7 @@ class ContactImplicitMPC:
         """:meth:`differentiate`, :meth:`objective` and the closed form's freeze, through
         ``torch.compile`` when the MPC compiles (the objective alone serves sampling planners,
         which need no gradient; a freeze is plain tensor algebra for the closed form only, whose
-        K(q), D(q) networks are some 40 small operations eagerly)."""
+        K(q), D(q) networks and dual rows took 0.4 ms of a TriFinger solve eagerly)."""
         if not self.compiled:
             return self.differentiate, self.objective, None
         freeze = None
@@ -284,7 +284,7 @@ class ContactImplicitMPC:
         """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`);
         ``previous (nq,)``: the state planned from before ``q0`` when the system carries
         momentum (the object's displacement to ``q0`` is worked out here, inside the traced
-        graph, not by a dozen small eager operations per solve)."""
+        graph, rather than eagerly before each solve)."""
         moved = None if previous is None else self.displacement(previous, q0)
         states = self.rollout(q0, controls, frozen, moved)
         pose = self.layout.object_pose(states)

@@ -353,8 +353,9 @@ def _compiled_rounds() -> Callable:
 @functools.cache
 def _compiled_start() -> Callable:
     """:func:`_start` compiled, ``fun`` traced into it: with ``compile_fun`` the start, its
-    bookkeeping and the first round's trials are one call, not a call and some 60 small
-    eager operations."""
+    bookkeeping and the first round's trials are one call, not a call followed by the
+    bookkeeping's small eager operations (0.2–0.3 ms a TriFinger solve, docs/experiments.md,
+    "Speed")."""
     return _traced(_start)
 
 

@@ -293,7 +293,7 @@ class Contacts:
             device = torch.empty(0).to(*args, **kwargs).device
             return x.to(device=device)
 
-        return replace(self, **{f.name: move(getattr(self, f.name)) for f in fields(self)})
+        return replace(self, **{name: move(x) for name, x in self._fields().items()})
 
     def dual_rows(self, facets: int = 4) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The dual-cone rows of the step, ordered contact-major (row = i·n_d + j).
@@ -336,7 +336,7 @@ _FIELD_NAMES = tuple(field.name for field in fields(Contacts))
 
 
 def _present(contacts: Contacts) -> list[str]:
-    return [field.name for field in fields(Contacts) if getattr(contacts, field.name) is not None]
+    return [name for name, x in contacts._fields().items() if x is not None]
 
 
 def _flatten(contacts: Contacts) -> tuple[list[torch.Tensor], tuple[str, ...]]:
