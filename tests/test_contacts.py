@@ -127,6 +127,12 @@ def test_padded_contacts_append_inert_slots(batch):
     jac, phi, active = padded.dual_rows(4)
     assert torch.count_nonzero(jac[..., 16:, :]) == 0 and not active[..., 16:].any()
     torch.testing.assert_close(jac[..., :16, :], c.dual_rows(4)[0], rtol=0, atol=0)
+    empty = Contacts.empty(3, 5, batch, c.phi.dtype)
+    for name in ("phi", "jac_normal", "jac_tangent", "mu", "active"):
+        added = getattr(padded, name).narrow(len(batch), 4, 3)
+        assert added.dtype == getattr(c, name).dtype and torch.equal(added, getattr(empty, name))
+    for name in ("frame", "position"):
+        assert not getattr(padded, name).narrow(len(batch), 4, 3).any()
     with pytest.raises(ValueError, match="slots must be an integer ≥ the 4 slots"):
         c.padded(3)
 
@@ -152,6 +158,7 @@ def test_to_dtype_keeps_active_bool(dtype):
         assert getattr(c, name).dtype == dtype
     assert c.active.dtype == torch.bool
     assert torch.equal(c.n_active(), torch.tensor([2, 2]))
+    assert c.to(dtype) is c and c.to("cpu") is c  # nothing to move: no copy, as Tensor.to
     moved = Contacts.empty(2, 3).to("cpu", torch.float64)
     assert moved.frame is None and moved.position is None and moved.phi.dtype == torch.float64
     assert moved.active.dtype == torch.bool

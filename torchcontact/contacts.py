@@ -128,24 +128,17 @@ class Contacts:
             raise ValueError(f"slots must be an integer ≥ the {self.slots} slots, got {slots!r}")
         if slots == self.slots:
             return self
-        pad = Contacts.empty(
-            slots - self.slots, self.nv, self.batch_shape, self.phi.dtype, self.phi.device
-        )
-        optional = {}
-        for name, shape in (("frame", (3, 3)), ("position", (3,))):
-            value = getattr(self, name)
-            if value is not None:
-                filler = value.new_zeros(*self.batch_shape, slots - self.slots, *shape)
-                optional[name] = torch.cat([value, filler], dim=-1 - len(shape))
-        return Contacts(
-            **{
-                name: torch.cat(
-                    [getattr(self, name), getattr(pad, name)], dim=len(self.batch_shape)
-                )
-                for name in ("phi", "jac_normal", "jac_tangent", "mu", "active")
-            },
-            **optional,
-        )
+        extra = slots - self.slots
+        # the new slots sit at dimension len(batch) of every field: pad that dimension only
+        # (one op a field, no re-validation: a solve pads its contacts at every step)
+        padding = {name: PAD_DISTANCE if name == "phi" else 0 for name in _FIELD_NAMES}
+        padded = {}
+        for name, x in self._fields().items():
+            if x is not None:
+                after = x.dim() - len(self.batch_shape) - 1  # dims after the slot dim
+                widths = (0, 0) * after + (0, extra)
+                padded[name] = torch.nn.functional.pad(x, widths, value=padding[name])
+        return Contacts._unchecked(padded)
 
     @property
     def slots(self) -> int:
@@ -293,7 +286,10 @@ class Contacts:
             device = torch.empty(0).to(*args, **kwargs).device
             return x.to(device=device)
 
-        return replace(self, **{name: move(x) for name, x in self._fields().items()})
+        moved = {name: move(x) for name, x in self._fields().items()}
+        if all(moved[name] is x for name, x in self._fields().items()):
+            return self  # already there: as Tensor.to, no copy (and no re-validation)
+        return replace(self, **moved)
 
     def dual_rows(self, facets: int = 4) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The dual-cone rows of the step, ordered contact-major (row = i·n_d + j).
