@@ -21,6 +21,10 @@ JOBS = {
         "torchcontact.mpc.evaluate",
         "closed-loop MPC trials in MuJoCo (e.g. run fingertips --task in-air --object cube)",
     ),
+    "compare": (
+        "torchcontact.mpc.compare",
+        "two runs' trial records side by side: trials won and lost, McNemar p-value",
+    ),
     "learn-k": (
         "torchcontact.cli.learn_k",
         "learn K(q), D(q) from MuJoCo rollouts; compare with the paper's and the best constant K",
