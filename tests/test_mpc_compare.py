@@ -68,7 +68,9 @@ def test_two_runs_are_compared_on_the_trials_both_hold(tmp_path, record):
 def test_a_run_leaves_out_set_aside_records_and_refuses_what_it_cannot_pair(tmp_path, record):
     run = _write_run(tmp_path / "run", record, {0: (True, 1.0, 1.0)})
     (run / "trials" / "trial_seed0.stale-1.json").write_text("{}")  # set aside: not a trial
-    assert list(load_run(run)) == [(record["env"], record["task"], record["object"], 0)]
+    write_json(run / "trials" / "my.part-mesh_seed1.json", {**record, "seed": 1})  # a dotted stem
+    key = (record["env"], record["task"], record["object"])
+    assert list(load_run(run)) == [(*key, 1), (*key, 0)]
     assert list(load_run(run / "trials")) == list(load_run(run))
     write_json(run / "trials" / "copy.json", {**record, "seed": 0})
     with pytest.raises(ValueError, match="are the same trial"):

@@ -131,13 +131,12 @@ class Contacts:
         extra = slots - self.slots
         # the new slots sit at dimension len(batch) of every field: pad that dimension only
         # (one op a field, no re-validation: a solve pads its contacts at every step)
-        padding = {name: PAD_DISTANCE if name == "phi" else 0 for name in _FIELD_NAMES}
         padded = {}
         for name, x in self._fields().items():
             if x is not None:
                 after = x.dim() - len(self.batch_shape) - 1  # dims after the slot dim
-                widths = (0, 0) * after + (0, extra)
-                padded[name] = torch.nn.functional.pad(x, widths, value=padding[name])
+                value = PAD_DISTANCE if name == "phi" else 0
+                padded[name] = torch.nn.functional.pad(x, (0, 0) * after + (0, extra), value=value)
         return Contacts._unchecked(padded)
 
     @property
