@@ -285,8 +285,9 @@ class Contacts:
             device = torch.empty(0).to(*args, **kwargs).device
             return x.to(device=device)
 
-        moved = {name: move(x) for name, x in self._fields().items()}
-        if all(moved[name] is x for name, x in self._fields().items()):
+        current = self._fields()
+        moved = {name: move(x) for name, x in current.items()}
+        if all(moved[name] is x for name, x in current.items()):
             return self  # already there: as Tensor.to, no copy (and no re-validation)
         return replace(self, **moved)
 
