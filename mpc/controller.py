@@ -397,29 +397,45 @@ class ContactImplicitMPC:
         return difference(previous, q, 1.0, self.layout)[..., self._object_rows]
 
     def _previous(self, q: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``(previous,)``, the state the last plan started from (``q`` itself at an episode's
-        first: no displacement), when the system carries momentum; else ``()``."""
+        """``(previous,)``, the state the last plan started from (a copy of ``q`` at an
+        episode's first: no displacement), when the system carries momentum; else ``()``. A
+        copy, not ``q`` itself: a compiled graph is specialised to which of its inputs alias,
+        so ``q`` twice would compile a second graph for each episode's first plan, and every
+        later call would check the guards of both."""
         last, self._last_q = self._last_q, q
         if not self.carries_momentum:
             return ()
-        return (q if last is None else last,)
+        return (q.clone() if last is None else last,)
 
     def _solve(self, q, contacts, targets, warm, compiled: bool):
         """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
         ``targets``: the target position and quaternion, then the previous plan's state when
         the system carries momentum (the objective's trailing arguments)."""
+        planner = self.planner if compiled else (self._eager_planner or self.planner)
+        box = (self.lower, self.upper)
+        if compiled and self._freeze is not None and getattr(planner, "applies_prepare", False):
+            # the closed form's freeze is traced into the planner's first compiled call
+            objective = Objective(
+                self._flat_value_and_grad, self._flat_differentiate, self._flat_value,
+                prepare=self._frozen_args,
+            )  # fmt: skip
+            with validate_args(False):
+                return planner.plan(objective, warm, box, args=(q, contacts, *targets))
         with torch.no_grad():
             frozen = self.freeze(q, contacts, compiled)
         if compiled:
             traceable = self._flat_differentiate if frozen.traceable else None
             objective = Objective(self._flat_value_and_grad, traceable, self._flat_value)
-            planner = self.planner
         else:
             objective = Objective(self._flat_eager_value_and_grad, value=self._flat_eager_value)
-            planner = self.planner if self._eager_planner is None else self._eager_planner
         with validate_args(False):
-            box, args = (self.lower, self.upper), (q, frozen, *targets)
-            return planner.plan(objective, warm, box, args=args)
+            return planner.plan(objective, warm, box, args=(q, frozen, *targets))
+
+    def _frozen_args(self, q, contacts, *targets) -> tuple:
+        """The objective's arguments ``(q, frozen, *targets)`` from ``(q, contacts,
+        *targets)``: the model's step frozen at ``contacts`` (an :attr:`Objective.prepare`)."""
+        with torch.no_grad():
+            return (q, self.freeze(q, contacts), *targets)
 
     def _graph_key(self, contacts: Contacts) -> str:
         """What the compiled graph of a solve at ``contacts`` is specialised to (all but the

@@ -38,6 +38,8 @@ class Hybrid:
             sampling, the same every call, so a plan depends only on its inputs.
     """
 
+    applies_prepare = True
+
     def __init__(
         self,
         max_iter: int = 30,
@@ -72,6 +74,7 @@ class Hybrid:
         )  # fmt: skip
 
     def plan(self, objective: Objective, x0, box, args: tuple = ()) -> PlannerResult:
+        objective, args = objective.prepared(args)
         lower, upper = (bound.expand_as(x0) for bound in box)
         x0 = torch.clamp(x0, lower, upper)
         problems, n = x0.shape

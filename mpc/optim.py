@@ -159,6 +159,7 @@ def lbfgs_box(
     args: tuple = (),
     compile_fun: bool = False,
     callback: Callable[[torch.Tensor, torch.Tensor], None] | None = None,
+    prepare: Callable[..., tuple] | None = None,
 ) -> LbfgsResult:
     """Minimise B independent box-constrained problems with projected L-BFGS.
 
@@ -195,6 +196,11 @@ def lbfgs_box(
         callback: called after every round (with ``compile_fun``: every compiled call) with
             the current ``x: (B, n)`` and ``f: (B,)`` (read only), e.g. to record the
             objective's history.
+        prepare: ``prepare(*args) -> tuple``, or None: the arguments ``fun`` takes after
+            ``x``, worked out from ``args`` once per solve, before the start's evaluation
+            (with ``compile_fun``, inside the start's compiled call, so that work such as an
+            MPC's contact-model freeze costs no compiled call of its own). Like ``fun``, it
+            must then be traceable and the same function object from solve to solve.
 
     Returns:
         :class:`LbfgsResult`.
@@ -212,14 +218,14 @@ def lbfgs_box(
         tol_grad=float(tol_grad),
         tol_change=float(tol_change),
         curvature_eps=torch.finfo(x0.dtype).eps,
-        problem_index=torch.arange(x0.shape[0], device=x0.device),
+        problem_index=_problem_index(x0.shape[0], x0.device),
     )
     if compile_fun and not (compile_steps and batched_trials):
         raise ValueError("compile_fun needs compile_steps=True and batched_trials=True")
-    fun = _Bound(fun, tuple(args))
     step = _compiled_step() if compile_steps else _step
     start = _compiled_start() if compile_fun else _start
-    state, trials, predicted, finite = start(fun.fun, fun.args, x0, memory, settings)
+    state, trials, predicted, finite, args = start(fun, tuple(args), prepare, x0, memory, settings)
+    fun = _Bound(fun, args)
     if not bool(finite):
         raise ValueError("fun returned NaN or Inf at x0 (f and grad must be finite in the box)")
 
@@ -319,17 +325,37 @@ the pass."""
 TRACED_GRAPHS = 64
 """The most graphs of the traced rounds one process keeps (Dynamo's recompile limit)."""
 
+GLOBAL_IDENTITY_GUARDS = frozenset(
+    {"ID_MATCH", "TYPE_MATCH", "CLOSURE_MATCH", "BUILTIN_MATCH", "MODULE_MATCH", "CLASS_MATCH",
+     "FUNCTION_MATCH"}
+)  # fmt: skip
+"""Kinds of Dynamo guard left out of the traced graphs when they check a module global:
+that a global name (``torch.cat``, a module, a function this module or the objective calls)
+still refers to the object traced. A traced round calls hundreds of such names, and checking
+them cost 6–8 % of a TriFinger solve (docs/experiments.md, "Speed"). Left out, a graph
+outlives a reassignment of those names at run time (monkeypatching, ``importlib.reload``);
+guards on global *values* (``ROUNDS_PER_CALL``, ``ARMIJO_C1``), on the arguments and on
+everything reached from them (the objective's own code and attributes) stay."""
+
+
+def _keep_guard(entries) -> list[bool]:
+    """Dynamo's ``guard_filter_fn`` of the traced graphs: all but
+    :data:`GLOBAL_IDENTITY_GUARDS` on globals."""
+    return [not (e.is_global and e.guard_type in GLOBAL_IDENTITY_GUARDS) for e in entries]
+
 
 def _traced(function: Callable) -> Callable:
     """``function`` through ``torch.compile`` for ``compile_fun``.
 
     Each problem size, dtype and objective compiles a graph of its own, and a process that
     sweeps MPC settings needs more than Dynamo's default 8 per function, after which it would
-    silently run eagerly: the limit is raised to :data:`TRACED_GRAPHS`."""
+    silently run eagerly: the limit is raised to :data:`TRACED_GRAPHS`. Guards on globals'
+    identity are left out (:data:`GLOBAL_IDENTITY_GUARDS`)."""
     config = torch._dynamo.config
     config.recompile_limit = max(config.recompile_limit, TRACED_GRAPHS)
     _decompose_small_products()
-    return torch.compile(function, dynamic=False, fullgraph=True, options=TRACED_FUN_OPTIONS)
+    options = {**TRACED_FUN_OPTIONS, "guard_filter_fn": _keep_guard}  # popped by torch.compile
+    return torch.compile(function, dynamic=False, fullgraph=True, options=options)
 
 
 @functools.cache
@@ -360,12 +386,20 @@ def _compiled_start() -> Callable:
 
 
 def _start(
-    fun: Callable, args: tuple, x0: torch.Tensor, memory: int, settings: _Settings
-) -> tuple[_State, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Evaluate ``fun(·, *args)`` at the projected start and set up an empty memory. Returns
-    the state, the first round's trials and predicted decrease (:func:`_propose`) and a 0-d
-    bool: whether ``fun``'s outputs were finite (checked by the caller, after the one host
-    sync)."""
+    fun: Callable,
+    args: tuple,
+    prepare: Callable[..., tuple] | None,
+    x0: torch.Tensor,
+    memory: int,
+    settings: _Settings,
+) -> tuple[_State, torch.Tensor, torch.Tensor, torch.Tensor, tuple]:
+    """Work out ``fun``'s arguments (``prepare(*args)``, or ``args`` when None), evaluate
+    ``fun`` at the projected start and set up an empty memory. Returns the state, the first
+    round's trials and predicted decrease (:func:`_propose`), a 0-d bool: whether ``fun``'s
+    outputs were finite (checked by the caller, after the one host sync), and ``fun``'s
+    arguments."""
+    if prepare is not None:
+        args = tuple(prepare(*args))
     lower, upper = settings.lower, settings.upper
     x = _project(x0, lower, upper)
     f, grad = _call(_Bound(fun, args), x)
@@ -390,7 +424,7 @@ def _start(
         n_iter=counts,
         n_evals=counts + 1,
     )
-    return (state, *_propose(state, settings), _finite(f, grad))
+    return (state, *_propose(state, settings), _finite(f, grad), args)
 
 
 def _step(
@@ -612,10 +646,7 @@ def _check_inputs(
             bound = torch.tensor(
                 missing if value is None else float(value), dtype=x0.dtype, device=x0.device
             )
-        try:
-            broadcastable = torch.broadcast_shapes(bound.shape, x0.shape) == x0.shape
-        except RuntimeError:
-            broadcastable = False
+        broadcastable = _broadcasts_to(bound.shape, x0.shape)
         check_shape(name, bound, f"broadcastable to x0's {tuple(x0.shape)}", broadcastable)
         if checking_values() and bool((torch.isnan(bound) | (bound == -missing)).any()):
             raise ValueError(f"{name} must not be NaN or {-missing}")
@@ -625,12 +656,31 @@ def _check_inputs(
     return x0, bounds[0], bounds[1]
 
 
+def _broadcasts_to(shape: torch.Size, target: torch.Size) -> bool:
+    """Whether ``shape`` broadcasts to ``target`` without enlarging it (``torch.broadcast_shapes``
+    takes tens of µs, a solve's budget in an MPC)."""
+    extra = len(target) - len(shape)
+    return extra >= 0 and all(size in (1, target[extra + i]) for i, size in enumerate(shape))
+
+
 def _check_trial_steps(trial_steps: Sequence[float], like: torch.Tensor) -> torch.Tensor:
     """The trial step sizes as a (K, 1, 1) tensor, after checking they are positive and
     decreasing."""
+    return _trial_steps(tuple(trial_steps), like.dtype, like.device)
+
+
+@functools.lru_cache(maxsize=64)
+def _trial_steps(trial_steps: tuple, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """:func:`_check_trial_steps`, made once per steps, dtype and device (never written to)."""
     steps = [float(step) for step in trial_steps]
     if not steps or any(not 0 < step < math.inf for step in steps):
         raise ValueError(f"trial_steps must be positive and finite, got {trial_steps!r}")
     if any(later >= earlier for earlier, later in zip(steps, steps[1:], strict=False)):
         raise ValueError(f"trial_steps must be strictly decreasing, got {trial_steps!r}")
-    return torch.tensor(steps, dtype=like.dtype, device=like.device)[:, None, None]
+    return torch.tensor(steps, dtype=dtype, device=device)[:, None, None]
+
+
+@functools.lru_cache(maxsize=64)
+def _problem_index(n_problems: int, device: torch.device) -> torch.Tensor:
+    """``arange(n_problems)``, made once per size and device (never written to)."""
+    return torch.arange(n_problems, device=device)

@@ -9,6 +9,7 @@ class with a :meth:`Planner.plan` method and one :func:`register_planner` call::
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
@@ -30,11 +31,24 @@ class Objective:
             or None where there is none.
         value: ``(x (N, n), *args) -> f (N,)`` alone, for planners that need no gradient
             (sampling), or None: :meth:`values` then drops the gradient of ``value_and_grad``.
+        prepare: ``(*planner_args) -> args``: the arguments the functions above take after
+            ``x``, worked out once per plan from those the planner was given (the MPC's
+            contact-model freeze), or None: the planner's arguments themselves. Where
+            ``traceable`` is set, it is traceable too, and a compiled planner traces it into
+            its first call.
     """
 
     value_and_grad: Callable[..., tuple[torch.Tensor, torch.Tensor]]
     traceable: Callable[..., tuple[torch.Tensor, torch.Tensor]] | None = None
     value: Callable[..., torch.Tensor] | None = None
+    prepare: Callable[..., tuple] | None = None
+
+    def prepared(self, args: tuple) -> tuple[Objective, tuple]:
+        """The objective without :attr:`prepare` and the arguments it takes, ``prepare``
+        applied to ``args`` eagerly (for planners that call the objective themselves)."""
+        if self.prepare is None:
+            return self, args
+        return dataclasses.replace(self, prepare=None), tuple(self.prepare(*args))
 
     def values(self, x: torch.Tensor, *args) -> torch.Tensor:
         """``f (N,)`` at ``x (N, n)``, without computing a gradient where :attr:`value` is set."""
@@ -53,7 +67,9 @@ class PlannerResult(NamedTuple):
 
 
 class Planner(Protocol):
-    """The planner interface; see the module docstring."""
+    """The planner interface; see the module docstring. A planner that applies an
+    objective's :attr:`Objective.prepare` says so with a class attribute
+    ``applies_prepare = True``; others are given objectives without one."""
 
     def plan(
         self,
@@ -75,6 +91,8 @@ class LBFGS:
         compile: ``torch.compile`` the rounds, with a traceable objective traced into them.
     """
 
+    applies_prepare = True
+
     def __init__(self, max_iter: int = 30, memory: int = 8, compile: bool = False):
         self.max_iter, self.memory, self.compile = max_iter, memory, compile
 
@@ -95,6 +113,7 @@ class LBFGS:
             compile_steps=self.compile,
             args=args,
             compile_fun=traced,
+            prepare=objective.prepare,
         )
         # the most rounds any problem ran; the points evaluated over all problems
         return PlannerResult(

@@ -155,6 +155,20 @@ def test_the_mpc_plans_from_the_objects_last_displacement(env):
     assert float(cost[0]) == pytest.approx(plan.cost, rel=1e-9)
 
 
+def test_an_episodes_first_plan_passes_a_copy_of_its_state_as_the_previous_one(env):
+    """Not the state itself: a compiled graph is specialised to which inputs alias, and one
+    graph serves an episode's first plan and the later ones."""
+    mpc = _momentum_mpc(env)
+    q, _ = _touching_state(env)
+    (previous,) = mpc._previous(q)
+    assert torch.equal(previous, q) and previous is not q
+    later = q + 0.001
+    (previous,) = mpc._previous(later)
+    assert previous is q
+    mpc.reset()
+    assert mpc._previous(later)[0] is not later
+
+
 def test_propagated_gaps_follow_the_models_own_motion(env):
     """Each step sees φ̃ advanced along the frozen normal rows by the steps before it; the first
     step, and every step with frozen gaps, sees the detected distances."""
@@ -320,9 +334,10 @@ def test_warm_start_is_the_shifted_plan(env, mpc):
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
 @pytest.mark.parametrize("gaps", GAPS)
 def test_compiled_plan_matches_the_eager_plan(env, gaps):
-    """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call),
-    the start into a call of its own and the closed form's freeze into another: the same
-    freeze bit for bit, and the same plans as eager, plan after warm-started plan."""
+    """Compiled, the objective is traced into the L-BFGS rounds (several per compiled call)
+    and the start into a call of its own, with the closed form's freeze traced into the start
+    (an ``Objective.prepare``): the same freeze bit for bit, and the same plans as eager,
+    plan after warm-started plan."""
     q, contacts = _touching_state(env)
     options = {"horizon": 2, "max_iter": 8, "gaps": gaps}
     eager = _mpc(env, **options)

@@ -251,6 +251,50 @@ def test_traced_fun_matches_eager(max_iter):
         assert bool(eager.converged.all()) and len(set(eager.n_iter.tolist())) == 2
 
 
+def _shift_and_scale(centre, scale):
+    """A ``prepare``: the shift of :func:`_shifted_rosenbrock` from its ``centre`` ``(n,)``."""
+    return centre - 1 / scale, scale
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+@pytest.mark.parametrize("traced", [False, True])
+def test_prepare_works_out_funs_arguments_once(traced):
+    """``prepare`` turns ``args`` into fun's arguments before the start (inside the start's
+    compiled call when traced): the iterates of fun given the prepared arguments directly."""
+    x0 = torch.tensor([[-1.2, 1.0, -1.2, 1.0], [0.3, 0.2, 0.1, 0.0]], dtype=torch.float64)
+    centre, scale = torch.full((4,), 0.6, dtype=torch.float64), torch.tensor(1.5).double()
+    options = dict(max_iter=40, compile_steps=traced, compile_fun=traced)
+    direct = lbfgs_box(
+        _shifted_rosenbrock, x0, -0.5, 0.8, args=_shift_and_scale(centre, scale), **options
+    )
+    prepared = lbfgs_box(
+        _shifted_rosenbrock, x0, -0.5, 0.8, args=(centre, scale), prepare=_shift_and_scale,
+        **options,
+    )  # fmt: skip
+    torch.testing.assert_close(prepared.x, direct.x, rtol=0, atol=1e-12)
+    assert prepared.n_iter.tolist() == direct.n_iter.tolist()
+    assert bool(prepared.converged.all())
+    torch.testing.assert_close(prepared.x[0], centre, rtol=0, atol=1e-5)  # the minimum
+
+
+def test_only_guards_on_globals_identity_are_left_out():
+    """The traced graphs' guard filter keeps guards on arguments and on globals' values."""
+    from types import SimpleNamespace
+
+    from torchcontact.mpc.optim import GLOBAL_IDENTITY_GUARDS, _keep_guard
+
+    entries = [
+        SimpleNamespace(is_global=True, guard_type="ID_MATCH"),  # e.g. G['torch'].cat
+        SimpleNamespace(is_global=True, guard_type="CLOSURE_MATCH"),  # a global function's code
+        SimpleNamespace(is_global=True, guard_type="CONSTANT_MATCH"),  # ROUNDS_PER_CALL == 4
+        SimpleNamespace(is_global=False, guard_type="ID_MATCH"),  # the objective's own code
+        SimpleNamespace(is_global=False, guard_type="TENSOR_MATCH"),
+    ]
+    assert _keep_guard(entries) == [False, False, True, True, True]
+    assert "CONSTANT_MATCH" not in GLOBAL_IDENTITY_GUARDS
+    assert "TENSOR_MATCH" not in GLOBAL_IDENTITY_GUARDS
+
+
 def _rotated_rosenbrock(x, rotations):
     """``fun`` of the Rosenbrock function of ``x`` turned by batched 3×3 ``rotations``: the
     small batched products pytorch-kinematics' transforms make."""

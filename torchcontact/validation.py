@@ -59,23 +59,32 @@ def _values(x: torch.Tensor | float) -> torch.Tensor:
 
 def check_finite(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` when ``x`` holds NaN or Inf."""
-    if checking_values(x) and not bool(torch.isfinite(_values(x)).all()):
+    if checking_values(x):
+        _check_finite(name, _values(x))
+
+
+def _check_finite(name: str, values: torch.Tensor) -> None:
+    if not bool(torch.isfinite(values).all()):
         raise ValueError(f"{name} must be finite, got NaN or Inf")
 
 
 def check_nonnegative(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` when ``x`` is NaN, Inf or negative."""
-    check_finite(name, x)
+    if not checking_values(x):  # nothing built: called in hot loops with checks off
+        return
     values = _values(x)
-    if checking_values(x) and values.numel() and bool((values < 0).any()):
+    _check_finite(name, values)
+    if values.numel() and bool((values < 0).any()):
         raise ValueError(f"{name} must be non-negative, got a minimum of {float(values.min()):g}")
 
 
 def check_positive(name: str, x: torch.Tensor | float) -> None:
     """Raise ``ValueError`` naming ``name`` unless every value of ``x`` is finite and > 0."""
-    check_finite(name, x)
+    if not checking_values(x):
+        return
     values = _values(x)
-    if checking_values(x) and values.numel() and not bool((values > 0).all()):
+    _check_finite(name, values)
+    if values.numel() and not bool((values > 0).all()):
         raise ValueError(f"{name} must be positive, got a minimum of {float(values.min()):g}")
 
 
