@@ -411,7 +411,8 @@ class ContactImplicitMPC:
         """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
         ``targets``: the target position and quaternion, then the previous plan's state when
         the system carries momentum (the objective's trailing arguments)."""
-        planner = self.planner if compiled else (self._eager_planner or self.planner)
+        eager = self._eager_planner if self._eager_planner is not None else self.planner
+        planner = self.planner if compiled else eager
         box = (self.lower, self.upper)
         if compiled and self._freeze is not None and getattr(planner, "applies_prepare", False):
             # the closed form's freeze is traced into the planner's first compiled call
