@@ -16,22 +16,17 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from torchcontact.cli import writable_file
-from torchcontact.mpc.trials import read_record
+from torchcontact.mpc.trials import SET_ASIDE_STEM, read_record
 from torchcontact.results import write_json
 
 TrialKey = tuple[str, str, str, int]
 """(environment, task, object, seed) of a trial."""
-
-SET_ASIDE = re.compile(r"\.[a-z]+-\d+$")
-"""The end of the stem a run gives a record it sets aside (``NAME.corrupt-1``, ``NAME.stale-2``,
-:func:`~torchcontact.mpc.trials.set_aside`); a mesh's stem may hold other dots."""
 
 
 def load_run(folder: str | Path) -> dict[TrialKey, dict]:
@@ -48,7 +43,7 @@ def load_run(folder: str | Path) -> dict[TrialKey, dict]:
     records: dict[TrialKey, dict] = {}
     seen: dict[TrialKey, Path] = {}
     for path in sorted(trials.glob("*.json")):
-        if SET_ASIDE.search(path.stem):
+        if SET_ASIDE_STEM.search(path.stem):
             continue
         record, problem = read_record(path)
         if record is None:

@@ -214,7 +214,7 @@ def lbfgs_box(
     settings = _Settings(
         lower=lower,
         upper=upper,
-        steps=_check_trial_steps(trial_steps, x0),
+        steps=_check_trial_steps(tuple(trial_steps), x0.dtype, x0.device),
         tol_grad=float(tol_grad),
         tol_change=float(tol_change),
         curvature_eps=torch.finfo(x0.dtype).eps,
@@ -663,15 +663,12 @@ def _broadcasts_to(shape: torch.Size, target: torch.Size) -> bool:
     return extra >= 0 and all(size in (1, target[extra + i]) for i, size in enumerate(shape))
 
 
-def _check_trial_steps(trial_steps: Sequence[float], like: torch.Tensor) -> torch.Tensor:
-    """The trial step sizes as a (K, 1, 1) tensor, after checking they are positive and
-    decreasing."""
-    return _trial_steps(tuple(trial_steps), like.dtype, like.device)
-
-
 @functools.lru_cache(maxsize=64)
-def _trial_steps(trial_steps: tuple, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """:func:`_check_trial_steps`, made once per steps, dtype and device (never written to)."""
+def _check_trial_steps(
+    trial_steps: tuple, dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
+    """The trial step sizes as a (K, 1, 1) tensor, after checking they are positive and
+    decreasing; made once per steps, dtype and device (never written to)."""
     steps = [float(step) for step in trial_steps]
     if not steps or any(not 0 < step < math.inf for step in steps):
         raise ValueError(f"trial_steps must be positive and finite, got {trial_steps!r}")

@@ -30,6 +30,7 @@ import hashlib
 import importlib.metadata
 import json
 import math
+import re
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
@@ -641,9 +642,15 @@ def finished_record(path: Path, config: TrialConfig, inputs: dict | None = None)
     return found if status == "reuse" else None
 
 
+SET_ASIDE_STEM = re.compile(r"\.[a-z]+-\d+$")
+"""The end of the stem :func:`set_aside` gives a record (``NAME.corrupt-1``, ``NAME.stale-2``;
+its labels are lowercase words); a mesh object's stem may hold other dots."""
+
+
 def set_aside(path: Path, label: str) -> Path:
     """Rename ``path`` (``NAME.json``) to the first free ``NAME.LABEL-<n>.json`` (n ≥ 1,
-    never overwriting a file) and return the new path."""
+    never overwriting a file, ``label`` matching :data:`SET_ASIDE_STEM`) and return the new
+    path."""
     n = 1
     while (target := path.with_name(f"{path.stem}.{label}-{n}{path.suffix}")).exists():
         n += 1
