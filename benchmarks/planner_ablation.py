@@ -5,13 +5,13 @@ same trials in one run.
     python benchmarks/planner_ablation.py trifinger --object random:30-79 --variants lbfgs hybrid
 
 Each variant is the environment's defaults with one change (``torchcontact run ENV --planner P
-[--support on | --support-margin M]``, :data:`VARIANTS`), run on the same objects and trial
-seeds through :func:`~torchcontact.mpc.trials.run_trials`, each in its own folder under
-``--out`` (default ``results/ablation/ENV``), so an interrupted run resumes trial by trial and
-a rerun only reprints. It prints, per variant, success, falls, mean final errors and the
-median and p90 MPC solve time, and writes ``ablation.json`` and ``ablation.csv`` there. Solve
-times are comparable between the rows of one run only (the same machine and load); run nothing
-else meanwhile.
+[--support on | --support-margin M | --contact-spread S]``, :data:`VARIANTS`), run on the same
+objects and trial seeds through :func:`~torchcontact.mpc.trials.run_trials`, each in its own
+folder under ``--out`` (default ``results/ablation/ENV``), so an interrupted run resumes trial
+by trial and a rerun only reprints. It prints, per variant, success, falls, mean final errors
+and the median and p90 MPC solve time, and writes ``ablation.json`` and ``ablation.csv``
+there. Solve times are comparable between the rows of one run only (the same machine and
+load); run nothing else meanwhile.
 """
 
 import os
@@ -34,11 +34,14 @@ VARIANTS = {
     "lbfgs+support": {"planner": "lbfgs", "support": True},
     "lbfgs+support-2cm": {"planner": "lbfgs", "support_margin": 0.02},
     "hybrid+support": {"planner": "hybrid", "support": True},
+    "lbfgs+centre-pull": {"planner": "lbfgs", "contact_spread": 0.0},
 }
 """Variants by name: the :class:`~torchcontact.mpc.trials.TrialConfig` fields they set, as
-``torchcontact run ENV --planner P [--support on] [--support-margin M]`` does (the rest the
-environment's defaults); the ``+support`` rows need an environment whose object rests on a
-body (the Allegro's palm)."""
+``torchcontact run ENV --planner P [--support on] [--support-margin M] [--contact-spread S]``
+does (the rest the environment's defaults); the ``+support`` rows need an environment whose
+object rests on a body (the Allegro's palm); ``+centre-pull`` draws every tip to the object's
+centre (the paper's contact term) where the environment's default spreads them along a long
+object (``HandModel.contact_spread``)."""
 
 
 def needs_support(name: str) -> bool:

@@ -122,6 +122,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="(allegro) how far inside the palm's edges [m] the support term keeps the "
         "object's centre; default the environment's",
     )
+    parser.add_argument(
+        "--contact-spread",
+        type=float,
+        default=None,
+        help="(hands) how far along a long object the cost draws the tips, a fraction of its "
+        "two longest sides' difference (0: to its centre, the paper's); default the "
+        "environment's",
+    )
     parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
     parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")
@@ -240,6 +248,10 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error("--tips is for the custom environment")
     if (args.support is not None or args.support_margin is not None) and args.cost is not None:
         parser.error("--support is a term of the environment's cost: drop --cost")
+    if args.contact_spread is not None and args.cost is not None:
+        parser.error("--contact-spread is a term of the environment's cost: drop --cost")
+    if args.contact_spread is not None and not 0 <= args.contact_spread < math.inf:
+        parser.error(f"--contact-spread must be a number >= 0, got {args.contact_spread}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -268,9 +280,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
         # a support option: a scene it applies to and a margin that fits, before any trial
-        if args.support or args.support_margin is not None:
+        if args.support or args.support_margin is not None or args.contact_spread is not None:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
-            env.cost(plant, support=args.support, margin=args.support_margin)
+            env.cost(plant, args.support, args.support_margin, args.contact_spread)
     except ValueError as error:
         parser.error(str(error))
     overrides = {

@@ -83,6 +83,7 @@ LEGACY_DEFAULTS = {
     "object_friction": None,
     "support": None,
     "support_margin": None,
+    "contact_spread": None,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -169,6 +170,9 @@ class TrialConfig:
         support: the cost's support term (a hand holding its object on a palm) on or off;
             None for the environment's default; support_margin: its margin [m], None for the
             environment's.
+        contact_spread: how far along a long object the cost's contact term draws the tips
+            (:attr:`~torchcontact.environments.hands.HandModel.contact_spread`), None for the
+            environment's.
     """
 
     env: str
@@ -198,6 +202,7 @@ class TrialConfig:
     object_friction: float | None = None
     support: bool | None = None
     support_margin: float | None = None
+    contact_spread: float | None = None
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -378,8 +383,13 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
     cost = config.cost
-    if config.support is not None or config.support_margin is not None:
-        cost = env.cost(plant, support=config.support, margin=config.support_margin)
+    if (config.support, config.support_margin, config.contact_spread) != (None,) * 3:
+        cost = env.cost(
+            plant,
+            support=config.support,
+            margin=config.support_margin,
+            spread=config.contact_spread,
+        )
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True
     )

@@ -12,7 +12,12 @@ import trimesh
 
 from torchcontact.cli import main
 from torchcontact.environments import ENVIRONMENTS, environment
-from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV, tips_before_sliding
+from torchcontact.environments.hands import (
+    ALLEGRO_ENV,
+    TRIFINGER_ENV,
+    long_half_axis,
+    tips_before_sliding,
+)
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
@@ -123,3 +128,48 @@ def test_bad_options_are_refused(bad, tmp_path, capsys):
         main(["run", "allegro", *bad, "--out", str(tmp_path)])
     assert exit_info.value.code not in (0, None)
     assert bad[0] in capsys.readouterr().err
+
+
+def test_the_contact_axis_lies_along_a_long_objects_longest_side():
+    stick = make_object("stick")  # 13 × 3.5 × 3 cm
+    sides = stick.vertices.max(0) - stick.vertices.min(0)
+    axis = long_half_axis(stick, 0.5)
+    np.testing.assert_allclose(axis, (0.5 * (sides[0] - sides[1]) / 2, 0.0, 0.0))
+    assert long_half_axis(make_object("cube"), 0.5) is None  # no longest side
+    assert long_half_axis(stick, 0.0) is None
+    with pytest.raises(ValueError, match="spread"):
+        long_half_axis(stick, -0.1)
+
+
+def test_a_hands_cost_takes_the_contact_axis_of_its_spread():
+    stick = ALLEGRO_ENV.make_plant("stick")
+    spread = ALLEGRO_ENV.model.contact_spread
+    assert ALLEGRO_ENV.cost(stick).contact_axis == long_half_axis(stick.object, spread)
+    assert ALLEGRO_ENV.cost(stick, spread=0.0).contact_axis is None  # the paper's pull
+    assert ALLEGRO_ENV.cost(stick, spread=1.0).contact_axis == long_half_axis(stick.object, 1.0)
+    assert ALLEGRO_ENV.cost(ALLEGRO_ENV.make_plant("cube"), spread=1.0).contact_axis is None
+    assert TRIFINGER_ENV.model.contact_spread == 0  # measured on the Allegro only
+    with pytest.raises(ValueError, match="spread"):
+        environment("fingertips").cost(environment("fingertips").make_plant("cube"), spread=0.5)
+
+
+@pytest.mark.parametrize(
+    "env, argv, message",
+    [
+        ("allegro", ["--contact-spread", "-1"], "--contact-spread must be a number >= 0"),
+        ("allegro", ["--contact-spread", "1", "--cost", "pushing"], "drop --cost"),
+        ("fingertips", ["--contact-spread", "0.5"], "spread: the fingertips keep"),
+    ],
+)
+def test_the_cli_refuses_a_meaningless_contact_spread(env, argv, message, capsys):
+    with pytest.raises(SystemExit):
+        main(["run", env, "--trials", "1", *argv])
+    assert message in capsys.readouterr().err
+
+
+def test_a_trial_records_its_contact_spread(tmp_path):
+    out = tmp_path / "run"
+    argv = ["run", "allegro", "--object", "stick", "--contact-spread", "1", *FAST]
+    assert main([*argv, "--out", str(out)]) == 0
+    records = [read_json(path) for path in sorted((out / "trials").glob("*.json"))]
+    assert [record["contact_spread"] for record in records] == [1.0, 1.0]

@@ -131,11 +131,18 @@ class Environment:
         """|u| per control element and step (rad or m)."""
         raise NotImplementedError
 
-    def cost(self, plant: Plant, support: bool | None = None, margin: float | None = None) -> Cost:
+    def cost(
+        self,
+        plant: Plant,
+        support: bool | None = None,
+        margin: float | None = None,
+        spread: float | None = None,
+    ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
         holds it, on or off (None: the environment's default; environments whose objects rest
-        on the ground refuse on)."""
+        on the ground refuse on); ``spread``: how far along a long object its contact term
+        draws the tips (hands only; None: the environment's default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,20 @@ def contact_cost(p: torch.Tensor, tips: torch.Tensor) -> torch.Tensor:
     return (tips - p.unsqueeze(-2)).square().sum((-1, -2))
 
 
+def axis_contact_cost(
+    p: torch.Tensor, quat: torch.Tensor, tips: torch.Tensor, half_axis: torch.Tensor
+) -> torch.Tensor:
+    """``Σᵢ ‖aᵢ − tipᵢ‖²`` [m²], ``aᵢ`` the point of the segment ``p ± R(q)·half_axis`` nearest
+    tip i: pulls every fingertip toward the object's long axis, not all to its centre, so tips
+    near an end of a long object stay there, where a push turns it. ``half_axis (3,)`` [m] is
+    in the body frame; zero gives :func:`contact_cost`."""
+    axis = (quaternion_to_matrix(quat) @ half_axis).unsqueeze(-2)  # (..., 1, 3)
+    offsets = tips - p.unsqueeze(-2)
+    length2 = axis.square().sum(-1, keepdim=True).clamp_min(1e-12)
+    along = ((offsets * axis).sum(-1, keepdim=True) / length2).clamp(-1.0, 1.0)
+    return (offsets - along * axis).square().sum((-1, -2))
+
+
 def raised(p: torch.Tensor, floor: float) -> torch.Tensor:
     """Positions ``p (..., 3)`` [m] with their height raised to at least ``floor`` [m]."""
     return torch.cat([p[..., :2], p[..., 2:].clamp_min(floor)], -1)
@@ -88,6 +102,10 @@ class ManipulationCost:
     rim, where they push it sideways, instead of pressing them into the support, whose
     friction then holds them (the model has no tip–support contact to tell it so). None: the
     object's centre, the paper's.
+
+    ``contact_axis (3,)`` [m], in the body frame, turns the contact term into
+    :func:`axis_contact_cost`: each tip is drawn toward its nearest point of the segment
+    ``p ± R(q)·contact_axis`` instead of the centre p. None: the centre, the paper's.
     """
 
     contact: float = 1.0
@@ -102,6 +120,7 @@ class ManipulationCost:
     support: tuple[float, float, float, float] | None = None
     support_weight: float = 1e5
     contact_floor: float | None = None
+    contact_axis: tuple[float, float, float] | None = None
 
     def __call__(
         self,
@@ -123,8 +142,12 @@ class ManipulationCost:
         """
         p, quat, tip = positions[..., :-1, :], quats[..., :-1, :], tips[..., :-1, :, :]
         anchor = p if self.contact_floor is None else raised(p, self.contact_floor)
+        if self.contact_axis is None:
+            pull = contact_cost(anchor, tip)
+        else:
+            pull = axis_contact_cost(anchor, quat, tip, tip.new_tensor(self.contact_axis))
         path = (
-            self.contact * contact_cost(anchor, tip)
+            self.contact * pull
             + self.grasp * grasp_cost(anchor, quat, tip)
             + self.control * controls.square().sum(-1)
         ).sum(-1)

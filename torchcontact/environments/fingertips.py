@@ -82,10 +82,16 @@ class FingertipsEnvironment(Environment):
         return CONTROL_BOUND
 
     def cost(
-        self, plant: FingertipsEnv, support: bool | None = None, margin: float | None = None
+        self,
+        plant: FingertipsEnv,
+        support: bool | None = None,
+        margin: float | None = None,
+        spread: float | None = None,
     ) -> ManipulationCost:
         if support or margin is not None:
             raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
+        if spread is not None:
+            raise ValueError("spread: the fingertips keep the paper's contact term")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):

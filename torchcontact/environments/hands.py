@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -58,6 +59,10 @@ class HandModel:
         contact_floor: whether the cost's contact and grasp terms draw the tips no lower than
             where a tip rests on the support (:attr:`ManipulationCost.contact_floor`, from the
             plant's geometry); off: toward the object's centre, the paper's.
+        contact_spread: how far along a long object the cost's contact term draws the tips:
+            toward the segment of :func:`long_half_axis` at this spread
+            (:attr:`ManipulationCost.contact_axis`), so a tip near an end pushes there, with a
+            lever about the centre; 0: all toward the centre, the paper's.
     """
 
     robot_stiffness: float
@@ -71,6 +76,21 @@ class HandModel:
     support_margin: float | None = None
     support_weight: float = 1e5
     contact_floor: bool = False
+    contact_spread: float = 0.0
+
+
+def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
+    """Half the segment [m], in ``obj``'s body frame, along its longest box side: ``spread ·
+    (L₁ − L₂)/2`` with L₁ ≥ L₂ its two longest sides (vertex extents along the body axes), so
+    an object with two equal longest sides (a cube, a disc) has none (None)."""
+    if not (math.isfinite(spread) and spread >= 0):
+        raise ValueError(f"spread must be a non-negative number, got {spread!r}")
+    vertices = obj.vertices
+    sides = vertices.max(0) - vertices.min(0)
+    longest, second = np.argsort(sides)[::-1][:2]
+    half = np.zeros(3)
+    half[longest] = spread * (sides[longest] - sides[second]) / 2
+    return tuple(float(x) for x in half) if half.any() else None
 
 
 Sampler = Callable[[HandEnv, str, int], tuple[np.ndarray, np.ndarray]]
@@ -131,18 +151,27 @@ class HandEnvironment(Environment):
         return self.model.control_bound
 
     def cost(
-        self, plant: HandEnv, support: bool | None = None, margin: float | None = None
+        self,
+        plant: HandEnv,
+        support: bool | None = None,
+        margin: float | None = None,
+        spread: float | None = None,
     ) -> Cost:
         """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
         where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
         needs a plant that holds its object on a body); ``margin`` [m]: the term's, instead of
-        the model's."""
+        the model's; ``spread``: the contact term's, instead of
+        :attr:`HandModel.contact_spread`."""
         cost = self.model.cost
         if self.model.tilt > 0 and tips_before_sliding(plant.object):
             cost = dataclasses.replace(cost, tilt=self.model.tilt)
         if self.model.contact_floor and isinstance(cost, ManipulationCost):
             floor = plant.support_height + plant.tip_clearance
             cost = dataclasses.replace(cost, contact_floor=floor)
+        spread = self.model.contact_spread if spread is None else spread
+        if spread and isinstance(cost, ManipulationCost):
+            axis = long_half_axis(plant.object, spread)
+            cost = dataclasses.replace(cost, contact_axis=axis)
         if (support or margin is not None) and plant.support_footprint is None:
             raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
         margin = self.model.support_margin if margin is None else margin
