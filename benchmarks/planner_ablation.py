@@ -34,14 +34,13 @@ VARIANTS = {
     "lbfgs+support": {"planner": "lbfgs", "support": True},
     "lbfgs+support-2cm": {"planner": "lbfgs", "support_margin": 0.02},
     "hybrid+support": {"planner": "hybrid", "support": True},
-    "lbfgs+centre-pull": {"planner": "lbfgs", "contact_spread": 0.0},
+    "lbfgs+axis": {"planner": "lbfgs", "contact_spread": 0.5},
 }
 """Variants by name: the :class:`~torchcontact.mpc.trials.TrialConfig` fields they set, as
 ``torchcontact run ENV --planner P [--support on] [--support-margin M] [--contact-spread S]``
 does (the rest the environment's defaults); the ``+support`` rows need an environment whose
-object rests on a body (the Allegro's palm); ``+centre-pull`` draws every tip to the object's
-centre (the paper's contact term) where the environment's default spreads them along a long
-object (``HandModel.contact_spread``)."""
+object rests on a body (the Allegro's palm); ``+axis`` draws the tips toward a long object's
+axis instead of its centre (``--contact-spread 0.5``)."""
 
 
 def needs_support(name: str) -> bool:

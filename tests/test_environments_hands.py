@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -15,7 +16,9 @@ from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.hands import (
     ALLEGRO_ENV,
     TRIFINGER_ENV,
+    HandEnvironment,
     long_half_axis,
+    sample_on_palm,
     tips_before_sliding,
 )
 from torchcontact.environments.presets import MPCSettings
@@ -23,7 +26,7 @@ from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
 from torchcontact.results import read_json
 from torchcontact.shapes import make_object, object_names
-from torchcontact.sim.hands import HANDS, Hand
+from torchcontact.sim.hands import ALLEGRO, HANDS, Hand
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
 EAGER = MPCSettings(compile=False)
@@ -173,3 +176,15 @@ def test_a_trial_records_its_contact_spread(tmp_path):
     assert main([*argv, "--out", str(out)]) == 0
     records = [read_json(path) for path in sorted((out / "trials").glob("*.json"))]
     assert [record["contact_spread"] for record in records] == [1.0, 1.0]
+
+
+def test_a_spread_needs_a_cost_with_a_contact_term():
+    def plain(positions, quats, tips, controls, target_position, target_quat):
+        return (positions[..., -1, :] - target_position).square().sum(-1)
+
+    model = dataclasses.replace(ALLEGRO_ENV.model, cost=plain)
+    env = HandEnvironment(ALLEGRO, model, "on-palm", ALLEGRO_ENV.criterion, sample_on_palm, {})
+    stick = env.make_plant("stick")
+    assert env.cost(stick) is plain
+    with pytest.raises(ValueError, match="spread: function has no contact term"):
+        env.cost(stick, spread=0.5)

@@ -169,9 +169,10 @@ class HandEnvironment(Environment):
             floor = plant.support_height + plant.tip_clearance
             cost = dataclasses.replace(cost, contact_floor=floor)
         spread = self.model.contact_spread if spread is None else spread
-        if spread and isinstance(cost, ManipulationCost):
-            axis = long_half_axis(plant.object, spread)
-            cost = dataclasses.replace(cost, contact_axis=axis)
+        if spread and not isinstance(cost, ManipulationCost):
+            raise ValueError(f"spread: {type(cost).__name__} has no contact term to spread")
+        if spread:
+            cost = dataclasses.replace(cost, contact_axis=long_half_axis(plant.object, spread))
         if (support or margin is not None) and plant.support_footprint is None:
             raise ValueError(f"support: {self.name}'s object rests on the ground, not on a body")
         margin = self.model.support_margin if margin is None else margin
