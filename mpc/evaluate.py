@@ -246,10 +246,13 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error("--robot is required by, and only for, the custom environment")
     if args.tips is not None and not custom:
         parser.error("--tips is for the custom environment")
-    if (args.support is not None or args.support_margin is not None) and args.cost is not None:
-        parser.error("--support is a term of the environment's cost: drop --cost")
-    if args.contact_spread is not None and args.cost is not None:
-        parser.error("--contact-spread is a term of the environment's cost: drop --cost")
+    cost_terms = {
+        "--support": args.support is not None or args.support_margin is not None,
+        "--contact-spread": args.contact_spread is not None,
+    }
+    given = [option for option, on in cost_terms.items() if on]
+    if given and args.cost is not None:
+        parser.error(f"{given[0]} is a term of the environment's cost: drop --cost")
     if args.contact_spread is not None and not 0 <= args.contact_spread < math.inf:
         parser.error(f"--contact-spread must be a number >= 0, got {args.contact_spread}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
@@ -279,7 +282,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         )
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
-        # a support option: a scene it applies to and a margin that fits, before any trial
+        # a cost option: a scene it applies to and a value that fits, before any trial
         if args.support or args.support_margin is not None or args.contact_spread is not None:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
             env.cost(plant, args.support, args.support_margin, args.contact_spread)
