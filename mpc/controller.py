@@ -144,7 +144,7 @@ class ContactImplicitMPC:
         ``model``: a contact model, a name of :data:`~torchcontact.model.MODELS` built with
         its defaults (the relaxed QP's κ is then the paper's at h = 0.1 s: for another h,
         pass ``RelaxedQP(paper_relaxation(h))``), or None for the paper's model at
-        ``env.default_stiffness``; a model holding a fitted
+        ``env.default_stiffness`` with ``env.support_pass``; a model holding a fitted
         :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
         calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
@@ -157,6 +157,7 @@ class ContactImplicitMPC:
             settings = env.preset() if settings is None else env.preset(settings)
         if model is None:
             model = contact_model("paper", stiffness=env.default_stiffness)
+            model.support_pass = env.support_pass
         elif isinstance(model, str):
             model = contact_model(model)
         if planner is None:

@@ -130,6 +130,14 @@ def build_parser() -> argparse.ArgumentParser:
         "two longest sides' difference (0: to its centre, the paper's); default the "
         "environment's",
     )
+    parser.add_argument(
+        "--support-pass",
+        choices=("on", "off"),
+        default=None,
+        help="the model resolves the object's contacts with static bodies (the ground, a "
+        "palm) after the robot's, so their friction answers a push (off: one pass, the "
+        "paper's); default the environment's",
+    )
     parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
     parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")
@@ -228,6 +236,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(
             "--learned replaces the paper model's constant K: drop --model and --stiffness"
         )
+    if qp and args.support_pass == "on":
+        parser.error("--support-pass on is for the paper model, not relaxed_qp")
     if qp and args.gaps == "propagated":
         parser.error("--gaps propagated is for the paper model; relaxed_qp plans with frozen gaps")
     if args.learned is not None and not args.learned.is_file():
@@ -269,6 +279,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     _check_options(parser, args)
     args.tips = None if args.tips is None else tuple(args.tips.split(","))
     args.support = None if args.support is None else args.support == "on"
+    args.support_pass = None if args.support_pass is None else args.support_pass == "on"
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
         env = environment(args.env, args.robot, args.tips)
@@ -440,9 +451,10 @@ def main(argv: list[str] | None = None) -> int:
         if path is not None:
             writable_file(option, path)
     planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
+    support = ", support pass" if configs[0].support_pass else ""
     print(
-        f"MPC through the {args.model} model ({_about(args)}); solver {args.settings.label}"
-        f"{planner}"
+        f"MPC through the {args.model} model ({_about(args)}{support}); solver "
+        f"{args.settings.label}{planner}"
     )
     for line in describe_objects(args):
         print(line)

@@ -43,7 +43,7 @@ from tqdm.auto import tqdm
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
-from torchcontact.model import ContactModel, RelaxedQP, contact_model
+from torchcontact.model import ComplementarityFree, ContactModel, RelaxedQP, contact_model
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.objects import ObjectOptions, is_mesh_file
@@ -84,6 +84,7 @@ LEGACY_DEFAULTS = {
     "support": None,
     "support_margin": None,
     "contact_spread": None,
+    "support_pass": False,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -173,6 +174,9 @@ class TrialConfig:
         contact_spread: how far along a long object the cost's contact term draws the tips
             (:attr:`~torchcontact.environments.hands.HandModel.contact_spread`), None for the
             environment's.
+        support_pass: the complementarity-free model resolves the contacts with static
+            bodies in a second pass (:attr:`~torchcontact.model.ComplementarityFree
+            .support_pass`); None for the environment's.
     """
 
     env: str
@@ -203,6 +207,7 @@ class TrialConfig:
     support: bool | None = None
     support_margin: float | None = None
     contact_spread: float | None = None
+    support_pass: bool | None = None
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -323,6 +328,9 @@ def trial_configs(
             options["stiffness"] = description.default_stiffness
     options.setdefault("stiffness", None)
     options.setdefault("planner", description.planner)
+    if options.get("support_pass") is None:
+        qp = options.get("model") == "relaxed_qp"
+        options["support_pass"] = description.support_pass and not qp
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -382,6 +390,13 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
+    support_pass = config.support_pass
+    if support_pass is None:  # a configuration made by hand: the environment's, where it fits
+        support_pass = env.support_pass and isinstance(model, ComplementarityFree)
+    if support_pass:
+        if not isinstance(model, ComplementarityFree):
+            raise ValueError(f"support_pass needs the complementarity-free model ({config.name})")
+        model.support_pass = True
     cost = config.cost
     if (config.support, config.support_margin, config.contact_spread) != (None,) * 3:
         cost = env.cost(

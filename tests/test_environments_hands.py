@@ -24,6 +24,7 @@ from torchcontact.environments.hands import (
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
+from torchcontact.mpc.trials import build_trial, trial_configs
 from torchcontact.results import read_json
 from torchcontact.shapes import make_object, object_names
 from torchcontact.sim.hands import ALLEGRO, HANDS, Hand
@@ -188,3 +189,29 @@ def test_a_spread_needs_a_cost_with_a_contact_term():
     assert env.cost(stick) is plain
     with pytest.raises(ValueError, match="spread: function has no contact term"):
         env.cost(stick, spread=0.5)
+
+
+def test_a_trial_records_its_support_pass_and_plans_with_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["run", "trifinger", "--object", "cube", "--support-pass", "on", *FAST]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert "support pass" in capsys.readouterr().out.splitlines()[0]
+    records = [read_json(path) for path in sorted((out / "trials").glob("*.json"))]
+    assert [record["support_pass"] for record in records] == [True, True]
+    config = trial_configs("trifinger", [("in-hand", "cube")], [0], support_pass=True)[0]
+    _, plant, mpc = build_trial(config)
+    assert mpc.model.support_pass
+    contacts = plant.contacts(torch.float64)
+    assert contacts.static[contacts.active].any()  # the cube rests on the ground
+    frozen = mpc.freeze(torch.as_tensor(plant.state()), contacts, compiled=False)
+    assert torch.equal(frozen.second_pass, contacts.static_rows(mpc.model.facets))
+
+
+def test_the_support_pass_is_for_the_closed_form(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "trifinger", "--model", "relaxed_qp", "--support-pass", "on"])
+    assert "--support-pass on is for the paper model" in capsys.readouterr().err
+    qp = trial_configs("trifinger", [("in-hand", "cube")], [0], model="relaxed_qp")[0]
+    assert qp.support_pass is False
+    with pytest.raises(ValueError, match="support_pass needs the complementarity-free model"):
+        build_trial(dataclasses.replace(qp, support_pass=True))

@@ -1,5 +1,6 @@
 """The closed-form contact step as pure tensor functions: cf_velocity, cf_multipliers, softplus."""
 
+import functools
 import itertools
 import math
 import re
@@ -440,3 +441,122 @@ def test_vmap_over_cf_velocity_with_value_checks_on():
             Q, b, jac, phi, 0.1, 2.0
         )
         torch.testing.assert_close(mapped, cf_velocity(Q, b, jac, phi, 0.1, 2.0))
+
+
+# --- the support pass: rows resolved on the motion the other rows leave -----------------------
+
+
+def pushed_column(push_height: float, dtype=F64):
+    """``(Q, b, jac, phi, second_pass)`` of a 4 × 4 × 8 cm column standing on the ground (four
+    corner contacts, μ = 0.5) while a pusher on a slide joint along x presses its −x face at
+    ``push_height`` [m] above its centre of mass; v = (v_obj, ω_obj, v_pusher), quasi-dynamic."""
+    half, height, mu = 0.02, 0.04, 0.5
+    ex, ey, ez = torch.eye(3, dtype=dtype)
+
+    def rows(point, normal, t1, t2, pusher):
+        def row(d):
+            robot = -d[:1] if pusher else torch.zeros(1, dtype=dtype)
+            return torch.cat([d, torch.linalg.cross(point, d), robot])
+
+        return row(normal), torch.stack([row(t1), row(t2)])
+
+    corners = [torch.tensor([sx * half, sy * half, -height], dtype=dtype) for sx in (-1, 1)
+               for sy in (-1, 1)]  # fmt: skip
+    contacts = [rows(c, ez, ex, ey, False) for c in corners]
+    contacts.append(rows(torch.tensor([-half, 0.0, push_height], dtype=dtype), ex, ey, ez, True))
+    normal = torch.stack([n for n, _ in contacts])
+    tangent = torch.stack([t for _, t in contacts])
+    facets = torch.tensor([[1.0, 0], [0, 1], [-1, 0], [0, -1]], dtype=dtype)
+    jac = (normal.unsqueeze(1) + mu * facets @ tangent).flatten(0, 1)  # (5·4, 7)
+    Q = torch.tensor([50.0] * 3 + [0.1] * 3 + [10.0], dtype=dtype)  # εMₒ/h², Kᵣ
+    b = torch.tensor([0, 0, -0.098, 0, 0, 0, 10.0 * 0.01], dtype=dtype)  # gravity, Kᵣu
+    ground = torch.tensor([True] * 16 + [False] * 4)
+    return Q, b, jac, torch.zeros(20, dtype=dtype), ground
+
+
+def test_support_pass_tips_a_column_pushed_at_its_centre_of_mass():
+    """One pass answers every row with the motion without contact, so the ground never feels
+    the push: pushed at its centre of mass's height, the column only slides. With the ground's
+    rows in a second pass their friction holds its base, and it tips toward the push."""
+    Q, b, jac, phi, ground = pushed_column(0.0)
+    one = cf_velocity(Q, b, jac, phi, 0.1, 5.0, 0.5)
+    two = cf_velocity(Q, b, jac, phi, 0.1, 5.0, 0.5, second_pass=ground)
+    tilt_one, tilt_two = (math.degrees(0.1 * v[4]) for v in (one, two))  # about y, top to +x
+    assert abs(tilt_one) < 0.2 < 1.0 < tilt_two
+    assert 0 < two[0] < 0.8 * one[0]  # the ground's friction holds it back
+    # pushed low, one pass tips it backwards (its base kicked out); the ground stops that
+    Q, b, jac, phi, ground = pushed_column(-0.03)
+    one = cf_velocity(Q, b, jac, phi, 0.1, 5.0, 0.5)
+    two = cf_velocity(Q, b, jac, phi, 0.1, 5.0, 0.5, second_pass=ground)
+    assert math.degrees(0.1 * one[4]) < -3.0 < math.degrees(0.1 * two[4]) < 0.5
+
+
+def _softplus_rows(Qinv, jac, phi, h, K, D, x):
+    """λ of every row (γ = 8) for the linear term ``x``, with explicit inverses."""
+    gap = jac @ Qinv @ x
+    return F.softplus(-K * (gap + phi) - D * gap / h, beta=8.0)
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_second_pass_matches_two_passes_rederived(dense):
+    torch.manual_seed(3)
+    for _ in range(5):
+        Q, b, jac, phi = random_step(5, 9, dense=dense)
+        later = torch.rand(9) < 0.5
+        K, D, h = 0.5 + torch.rand(9, dtype=F64), 0.2 * torch.rand(9, dtype=F64), 0.07
+        Qinv = torch.linalg.inv(Q if dense else torch.diag(Q))
+        rows = functools.partial(_softplus_rows, Qinv, jac, phi, h, K, D)
+        first = rows(b) * ~later
+        second = rows(b + jac.T @ first) * later
+        expected = Qinv @ (b + jac.T @ (first + second)) / h
+        v = cf_velocity(Q, b, jac, phi, h, K, D, 8.0, second_pass=later)
+        torch.testing.assert_close(v, expected, rtol=1e-10, atol=1e-10)
+        lam, _ = cf_multipliers(Q, b, jac, phi, h, K, D, 8.0, second_pass=later.double())
+        torch.testing.assert_close(lam, first + second, rtol=1e-10, atol=1e-10)
+
+
+def test_an_empty_second_pass_is_the_paper_step():
+    Q, b, jac, phi = random_step(4, 6, batch=(2, 3))
+    none = torch.zeros(6, dtype=torch.bool)
+    torch.testing.assert_close(
+        cf_velocity(Q, b, jac, phi, 0.1, 2.0, 0.2, second_pass=none),
+        cf_velocity(Q, b, jac, phi, 0.1, 2.0, 0.2),
+        rtol=0,
+        atol=0,
+    )
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_second_pass_batches_and_keeps_dtype(dtype):
+    Q, b, jac, phi = random_step(4, 6, batch=(2, 3), dtype=dtype)
+    later = torch.rand(3, 6) < 0.5  # broadcasts over the leading batch dimension
+    v = cf_velocity(Q, b, jac, phi, 0.1, 2.0, 0.2, second_pass=later)
+    assert v.shape == (2, 3, 4) and v.dtype == dtype
+    for i, j in itertools.product(range(2), range(3)):
+        single = cf_velocity(Q[i, j], b[i, j], jac[i, j], phi[i, j], 0.1, 2.0, 0.2,
+                             second_pass=later[j])  # fmt: skip
+        torch.testing.assert_close(v[i, j], single)
+
+
+def test_second_pass_gradcheck_float64():
+    Q, b, jac, phi = random_step(4, 6)
+    later = torch.tensor([True, False, True, False, False, True])
+    K = (1.0 + torch.rand(6, dtype=F64)).requires_grad_()
+    assert torch.autograd.gradcheck(
+        lambda b, K: cf_velocity(Q, b, jac, phi, 0.1, K, 0.1 * K, 8.0, second_pass=later),
+        (b.requires_grad_(), K),
+    )
+
+
+@pytest.mark.parametrize(
+    "mask, match",
+    [
+        (torch.zeros(5, dtype=torch.bool), "second_pass"),
+        (torch.full((6,), 0.5, dtype=F64), "only 0 and 1"),
+        ([True] * 6, "second_pass must be a torch.Tensor"),
+    ],
+)
+def test_bad_second_pass_raises_naming_it(mask, match):
+    Q, b, jac, phi = random_step(4, 6)
+    with pytest.raises((ValueError, TypeError), match=match):
+        cf_velocity(Q, b, jac, phi, 0.1, 2.0, second_pass=mask)

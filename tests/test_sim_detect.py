@@ -521,3 +521,18 @@ def test_found_describes_every_state_of_a_batch():
     assert detector.found.shape == (3, 1)
     detector(np.zeros((0, model.nq)))
     assert detector.found.shape == (0,)
+
+
+def test_static_marks_contacts_with_bodies_welded_to_the_world():
+    model, q = _overlapping_robot_state()
+    raw = Collider(model)(q)[0]
+    obj = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "object")
+    contacts = ContactDetector(model, ["object"], slots=12, margin=MARGIN)(q)
+    expected = [0 in c["bodies"] for c in raw if obj in c["bodies"]]
+    assert any(expected) and not all(expected)  # the floor's contact and the robot's
+    active = contacts.active
+    assert contacts.static.dtype == torch.bool
+    assert sorted(contacts.static[active].tolist()) == sorted(expected)
+    assert not contacts.static[~active].any()  # padding is never static
+    floor = contacts.position[contacts.static][:, 2]
+    assert (floor.abs() < MARGIN).all()  # the static contacts are those on the floor

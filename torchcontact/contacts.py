@@ -60,6 +60,9 @@ class Contacts:
         active: ``(..., nc)`` bool, False for padding slots.
         frame: optional ``(..., nc, 3, 3)`` world frame, rows (n, t₁, t₂), for features/plots.
         position: optional ``(..., nc, 3)`` world contact point [m].
+        static: optional ``(..., nc)`` bool, True where the contact's other body is fixed in
+            the world (the ground, a palm no joint moves): the rows a model may resolve in a
+            second pass (:attr:`~torchcontact.model.ComplementarityFree.support_pass`).
     """
 
     phi: torch.Tensor
@@ -69,6 +72,7 @@ class Contacts:
     active: torch.Tensor
     frame: torch.Tensor | None = None
     position: torch.Tensor | None = None
+    static: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         for name in ("phi", "jac_normal", "jac_tangent", "mu"):
@@ -94,6 +98,13 @@ class Contacts:
         )
         if self.active.dtype != torch.bool:
             raise TypeError(f"active must be a bool tensor, got {self.active.dtype}")
+        if self.static is not None:
+            if not isinstance(self.static, torch.Tensor):
+                raise TypeError(f"static must be a torch.Tensor, got {type(self.static).__name__}")
+            same = self.static.shape == self.phi.shape
+            check_shape("static", self.static, f"{tuple(self.phi.shape)}", same)
+            if self.static.dtype != torch.bool:
+                raise TypeError(f"static must be a bool tensor, got {self.static.dtype}")
         if self.frame is not None:
             check_shape(
                 "frame", self.frame, f"{(*batch, nc, 3, 3)}", self.frame.shape == (*batch, nc, 3, 3)
@@ -219,7 +230,7 @@ class Contacts:
                     f"items must share slots and nv, got {(first.slots, first.nv)} and "
                     f"{(c.slots, c.nv)}: pad them with Contacts.padded first"
                 )
-            for name in ("frame", "position"):
+            for name in ("frame", "position", "static"):
                 if (getattr(c, name) is None) != (getattr(first, name) is None):
                     raise ValueError(f"items must all carry {name} or all lack it")
         return items
@@ -310,6 +321,17 @@ class Contacts:
         phi = self.phi.repeat_interleave(facets, dim=-1)
         active = self.active.repeat_interleave(facets, dim=-1)
         return jac, phi, active
+
+    def static_rows(self, facets: int = 4) -> torch.Tensor:
+        """``(..., nc·n_d)`` bool: the dual-cone rows (ordered as :meth:`dual_rows`) of active
+        contacts with a static body. Raises ``ValueError`` when the contacts carry no
+        :attr:`static`."""
+        if self.static is None:
+            raise ValueError(
+                "contacts.static is None: detect the contacts with a ContactDetector (which "
+                "marks those with a static body) or set it"
+            )
+        return (self.static & self.active).repeat_interleave(facets, dim=-1)
 
     def impulses(
         self, row_impulse: torch.Tensor, facets: int = 4

@@ -85,6 +85,11 @@ class ComplementarityFree(ContactModel):
         calibration: a fitted :class:`~torchcontact.calibration.SystemCalibration` or None.
             The model scales its contacts' μ by the calibration's friction factor; the
             caller's system should be ``calibration.apply(system)`` (the MPC's is).
+        support_pass: resolve the contacts with a static body (``contacts.static``: the
+            ground, a fixed palm) in a second pass, on the motion the robot's contacts leave
+            (``second_pass`` of :func:`~torchcontact.functional.cf_velocity`), so the
+            support's friction answers a push; False: one pass, the paper's. An attribute:
+            set it on a loaded model too.
 
     Call: ``model(Q, b, contacts, h, q=None)`` with ``Q (..., nv)`` or ``(..., nv, nv)``,
     ``b (..., nv)``, :class:`Contacts` of batch shape ``...``, ``h`` [s] and, for
@@ -98,8 +103,12 @@ class ComplementarityFree(ContactModel):
         gamma: float | None = 100.0,
         facets: int = 4,
         calibration: SystemCalibration | None = None,
+        support_pass: bool = False,
     ):
         super().__init__()
+        if not isinstance(support_pass, bool):
+            raise ValueError(f"support_pass must be True or False, got {support_pass!r}")
+        self.support_pass = support_pass
         if gamma is not None and not (
             isinstance(gamma, (int, float))
             and not isinstance(gamma, bool)
@@ -146,13 +155,20 @@ class ComplementarityFree(ContactModel):
             normal.repeat_interleave(self.facets, dim=-2),
             float(h),
             self.gamma,
+            self.second_pass(contacts),
         )
+
+    def second_pass(self, contacts: Contacts) -> torch.Tensor | None:
+        """The rows ``(..., nc·n_d)`` resolved second: with :attr:`support_pass`, those of
+        contacts with a static body; else None."""
+        return contacts.static_rows(self.facets) if self.support_pass else None
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         contacts = self.calibrated(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
-        lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma)
+        second = self.second_pass(contacts)
+        lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma, second)
         lam = lam * active.to(lam.dtype)
         v = velocity_from_multipliers(solve, b, jac, lam, h)
         return v, lam * _batch_scalar(h)

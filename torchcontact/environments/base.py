@@ -89,6 +89,9 @@ class Environment:
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         planner: the planner it plans with unless told otherwise (a name of
             :data:`~torchcontact.mpc.planners.PLANNERS`), the measured best.
+        support_pass: whether its MPC's complementarity-free model resolves the contacts
+            with static bodies in a second pass
+            (:attr:`~torchcontact.model.ComplementarityFree.support_pass`), the measured best.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -101,6 +104,7 @@ class Environment:
     stiffness: float
     default_stiffness: float
     planner: str = "lbfgs"
+    support_pass: bool = False
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout

@@ -63,6 +63,9 @@ class HandModel:
             toward the segment of :func:`long_half_axis` at this spread
             (:attr:`ManipulationCost.contact_axis`), so a tip near an end pushes there, with a
             lever about the centre; 0: all toward the centre, the paper's.
+        support_pass: whether the model resolves the object's contacts with the support
+            after the fingers' (:attr:`~torchcontact.model.ComplementarityFree.support_pass`),
+            so a push's friction torque at the base is in the plan.
     """
 
     robot_stiffness: float
@@ -77,6 +80,7 @@ class HandModel:
     support_weight: float = 1e5
     contact_floor: bool = False
     contact_spread: float = 0.0
+    support_pass: bool = False
 
 
 def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
@@ -125,6 +129,7 @@ class HandEnvironment(Environment):
         self.pairs = tuple((task, obj) for obj in objects) or ((task, "cube"),)
         self.criterion = criterion
         self.stiffness = self.default_stiffness = model.stiffness
+        self.support_pass = model.support_pass
         self.presets = presets
 
     @functools.cached_property

@@ -207,7 +207,15 @@ class ContactDetector:
             out["active"][slot] = True
             out["frame"][slot] = frame
             out["position"][slot] = contact.pos
+            out["static"][slot] = self._is_static(m, contact.geom1) or self._is_static(
+                m, contact.geom2
+            )
         return out
+
+    @staticmethod
+    def _is_static(m: mujoco.MjModel, geom: int) -> bool:
+        """Whether ``geom``'s body is welded to the world (no joint moves it)."""
+        return bool(m.body_weldid[m.geom_bodyid[geom]] == 0)
 
     def _padding(self, nv: int) -> dict[str, np.ndarray]:
         """Arrays of ``slots`` empty slots (the layout of one state's contacts)."""
@@ -220,6 +228,7 @@ class ContactDetector:
             "active": np.zeros(nc, dtype=bool),
             "frame": np.tile(np.eye(3), (nc, 1, 1)),
             "position": np.zeros((nc, 3)),
+            "static": np.zeros(nc, dtype=bool),
         }
 
     def _point_jacobian(self, m, d, geom: int, point: np.ndarray) -> np.ndarray:
@@ -229,7 +238,7 @@ class ContactDetector:
     def _to_contacts(self, arrays: dict[str, np.ndarray]) -> Contacts:
         def tensor(key):
             x = torch.from_numpy(np.ascontiguousarray(arrays[key]))
-            if key == "active":
+            if key in ("active", "static"):
                 return x.to(self.device)
             return x.to(device=self.device, dtype=self.dtype)
 
