@@ -176,7 +176,7 @@ class TrialConfig:
             environment's.
         support_pass: the complementarity-free model resolves the contacts with static
             bodies in a second pass (:attr:`~torchcontact.model.ComplementarityFree
-            .support_pass`); None for the environment's.
+            .support_pass`); :func:`trial_configs` gives the environment's unless told.
     """
 
     env: str
@@ -207,7 +207,7 @@ class TrialConfig:
     support: bool | None = None
     support_margin: float | None = None
     contact_spread: float | None = None
-    support_pass: bool | None = None
+    support_pass: bool = False
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -390,10 +390,7 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
-    support_pass = config.support_pass
-    if support_pass is None:  # a configuration made by hand: the environment's, where it fits
-        support_pass = env.support_pass and isinstance(model, ComplementarityFree)
-    if support_pass:
+    if config.support_pass:
         if not isinstance(model, ComplementarityFree):
             raise ValueError(f"support_pass needs the complementarity-free model ({config.name})")
         model.support_pass = True
