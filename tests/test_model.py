@@ -362,8 +362,10 @@ def test_support_pass_resolves_the_static_contacts_second():
     frozen = model.freeze(c, h)
     assert torch.equal(frozen.second_pass, second)
     torch.testing.assert_close(frozen.velocity(Q, b), expected)
+    assert "support_pass=True" in repr(model)  # a compiled MPC graph's key tells them apart
     model.support_pass = False
     assert model.freeze(c, h).second_pass is None
+    assert "support_pass" not in repr(model)
     assert not torch.allclose(model(Q, b, c, h), expected)
 
 

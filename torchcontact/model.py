@@ -174,7 +174,9 @@ class ComplementarityFree(ContactModel):
         return v, lam * _batch_scalar(h)
 
     def extra_repr(self) -> str:
-        return f"gamma={self.gamma}, facets={self.facets}"
+        # the repr names what a compiled MPC graph is specialised to (mpc.background.graph_key)
+        support = ", support_pass=True" if self.support_pass else ""
+        return f"gamma={self.gamma}, facets={self.facets}{support}"
 
 
 class AnitescuQP(ContactModel):
