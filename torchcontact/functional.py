@@ -223,8 +223,9 @@ def cf_velocity(
     row's force. ``second_pass`` resolves some rows after the others: their λ answers the
     motion the first rows leave, Q⁻¹(b + J̃ᵀλ₁). With the contacts on a static support (the
     ground) in the second pass, the support's friction answers a finger's push, at the base,
-    so a push at the centre of mass's height tips a tall object as it does in MuJoCo, where
-    one pass only slides it (docs/experiments.md, "Contact model").
+    so a push at the centre of mass's height tips a tall object forwards, as the floor's
+    friction does to a rigid body, where one pass only slides it (docs/experiments.md,
+    "Contact model").
 
     Args:
         Q: ``(..., nv)`` positive diagonal or ``(..., nv, nv)`` SPD metric
