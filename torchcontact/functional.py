@@ -121,11 +121,14 @@ def _step_batch(Q, b, jac, phi) -> tuple[torch.Size, int]:
         ) from None
 
 
-def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
+def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass=None) -> None:
     """Check a step's arguments, raising ``ValueError`` (``TypeError`` for non-tensors) naming
     the bad one. ``h``, ``stiffness`` and ``damping`` must broadcast to the batch shape of
-    ``Q, b, jac, phi`` (and its rows) without enlarging it, and lie on ``b``'s device."""
+    ``Q, b, jac, phi`` (and its rows) without enlarging it, and lie on ``b``'s device;
+    ``second_pass``, if given, must be a 0/1 mask broadcastable to the rows ``(..., m)``."""
     batch, m = _step_batch(Q, b, jac, phi)
+    if second_pass is not None:
+        _check_second_pass(second_pass, (*batch, m))
     scalars = {"h": h, "stiffness": stiffness, "damping": damping}
     for name, x in scalars.items():
         if isinstance(x, torch.Tensor):
@@ -169,9 +172,7 @@ def cf_multipliers(
     ``second_pass``, its rows' λ is that formula at ``b + J̃ᵀλ₁`` instead of ``b``, λ₁ the
     other rows' λ (zero on the second pass's rows).
     """
-    _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma)
-    if second_pass is not None:
-        _check_second_pass(second_pass, Q, b, jac, phi)
+    _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass)
     solve = metric_solver(Q, b)
     h_rows = _batch_scalar(h)
     lam = _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, solve(b))
@@ -194,12 +195,11 @@ def _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, free_motion) -
     return softplus(argument, gamma)
 
 
-def _check_second_pass(second_pass, Q, b, jac, phi) -> None:
-    """``second_pass`` must be a 0/1 mask broadcastable to the rows ``(..., m)``."""
+def _check_second_pass(second_pass, rows: tuple[int, ...]) -> None:
+    """``second_pass`` must be a 0/1 mask broadcastable to the rows' shape ``rows``."""
     if not isinstance(second_pass, torch.Tensor):
         raise TypeError(f"second_pass must be a torch.Tensor, got {type(second_pass).__name__}")
-    batch, m = _step_batch(Q, b, jac, phi)
-    check_broadcasts_to("second_pass", second_pass, (*batch, m), "the rows (..., m)")
+    check_broadcasts_to("second_pass", second_pass, rows, "the rows (..., m)")
     if checking_values() and not bool(((second_pass == 0) | (second_pass == 1)).all()):
         raise ValueError("second_pass must hold only 0 and 1 (or False and True)")
 
