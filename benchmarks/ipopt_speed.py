@@ -67,9 +67,11 @@ def run_trial(
     env = environment(env_name)
     plant = env.make_plant(obj)
     preset = dataclasses.replace(env.preset(), compile=compile)
-    ours = ContactImplicitMPC.from_env(env, plant, settings=preset)
+    # the paper's problem on both sides: the balance term is ours, not in the CasADi NLP
+    cost = env.cost(plant, balance=0.0)
+    ours = ContactImplicitMPC.from_env(env, plant, settings=preset, cost=cost)
     problem = ContactImplicitMPC.from_env(
-        env, plant, settings=dataclasses.replace(PAPER, compile=False)
+        env, plant, settings=dataclasses.replace(PAPER, compile=False), cost=cost
     )
     settings = {"max_iter": REFERENCE_MAX_ITER}
     if not is_chain(problem):  # point fingertips: the reference's cap and tip bounds for them

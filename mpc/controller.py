@@ -371,6 +371,9 @@ class ContactImplicitMPC:
     def _plan(self, q, contacts, target_p, target_quat, start: float) -> Plan:
         """:meth:`plan` after its checks; ``start``: its ``time.perf_counter()``."""
         q, contacts = q.to(self.dtype), contacts.to(self.dtype)
+        observe = getattr(self.cost, "observe", None)
+        if observe is not None:  # a cost that depends on the contacts at the plan's start
+            observe(contacts)
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         targets = (target_p, target_quat) + self._previous(q)

@@ -131,6 +131,13 @@ def build_parser() -> argparse.ArgumentParser:
         "environment's",
     )
     parser.add_argument(
+        "--balance",
+        type=float,
+        default=None,
+        help="(hands) weight of the cost's term against pushes that would tip the object over "
+        "its base's edge, from its geometry (0: off); default the environment's",
+    )
+    parser.add_argument(
         "--support-pass",
         choices=("on", "off"),
         default=None,
@@ -259,12 +266,15 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     cost_terms = {
         "--support": args.support is not None or args.support_margin is not None,
         "--contact-spread": args.contact_spread is not None,
+        "--balance": args.balance is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
         parser.error(f"{given[0]} is a term of the environment's cost: drop --cost")
     if args.contact_spread is not None and not 0 <= args.contact_spread < math.inf:
         parser.error(f"--contact-spread must be a number >= 0, got {args.contact_spread}")
+    if args.balance is not None and not 0 <= args.balance < math.inf:
+        parser.error(f"--balance must be a weight >= 0, got {args.balance}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -294,9 +304,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
         # a cost option: a scene it applies to and a value that fits, before any trial
-        if args.support or args.support_margin is not None or args.contact_spread is not None:
+        terms = (args.support, args.support_margin, args.contact_spread, args.balance)
+        if args.support or any(term is not None for term in terms[1:]):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
-            env.cost(plant, args.support, args.support_margin, args.contact_spread)
+            env.cost(plant, *terms)
     except ValueError as error:
         parser.error(str(error))
     overrides = {
@@ -452,9 +463,10 @@ def main(argv: list[str] | None = None) -> int:
             writable_file(option, path)
     planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
     support = ", support pass" if configs[0].support_pass else ""
+    balance = f", balance term {configs[0].balance:g}" if configs[0].balance else ""
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
-        f"{args.settings.label}{planner}"
+        f"{args.settings.label}{planner}{balance}"
     )
     for line in describe_objects(args):
         print(line)

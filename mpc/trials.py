@@ -85,6 +85,7 @@ LEGACY_DEFAULTS = {
     "support_margin": None,
     "contact_spread": None,
     "support_pass": False,
+    "balance": 0.0,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -177,6 +178,9 @@ class TrialConfig:
         support_pass: the complementarity-free model resolves the contacts with static
             bodies in a second pass (:attr:`~torchcontact.model.ComplementarityFree
             .support_pass`); :func:`trial_configs` gives the environment's unless told.
+        balance: the weight of the cost's balance term (:func:`~torchcontact.environments
+            .costs.balance_cost`; 0: none); :func:`trial_configs` gives the environment's
+            unless told.
     """
 
     env: str
@@ -208,6 +212,7 @@ class TrialConfig:
     support_margin: float | None = None
     contact_spread: float | None = None
     support_pass: bool = False
+    balance: float = 0.0
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -331,6 +336,8 @@ def trial_configs(
     if options.get("support_pass") is None:
         qp = options.get("model") == "relaxed_qp"
         options["support_pass"] = description.support_pass and not qp
+    if options.get("balance") is None:
+        options["balance"] = description.balance if options.get("cost") is None else 0.0
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -395,13 +402,16 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             raise ValueError(f"support_pass needs the complementarity-free model ({config.name})")
         model.support_pass = True
     cost = config.cost
-    if (config.support, config.support_margin, config.contact_spread) != (None,) * 3:
+    if cost is None:
         cost = env.cost(
             plant,
             support=config.support,
             margin=config.support_margin,
             spread=config.contact_spread,
+            balance=config.balance,
         )
+    elif config.balance:
+        raise ValueError(f"balance is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True
     )

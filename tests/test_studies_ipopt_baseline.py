@@ -135,7 +135,10 @@ def test_the_baseline_refuses_what_it_cannot_solve(scene):
         IpoptMPC(ContactImplicitMPC.from_env(fingertips, cube, settings=propagated), n_rows=32)
     with pytest.raises(ValueError, match="qp"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, "relaxed_qp", settings=EAGER), 60)
-    hand_mpc = ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER)
+    with pytest.raises(ValueError, match="not the balance term"):
+        IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER), 60)
+    paper_cost = trifinger.cost(hand, balance=0.0)
+    hand_mpc = ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=paper_cost)
     with pytest.raises(ValueError, match="tip_height"):
         IpoptMPC(hand_mpc, n_rows=60, tip_height=(0.0, 0.1))
     with pytest.raises(ValueError, match="formulation"):
@@ -162,7 +165,8 @@ def test_a_hands_nlp_steps_and_solves_as_our_mpc_in_both_formulations(hand):
     plant.reset(initial, target)
     for _ in range(3):  # let the object settle into the fingers' grip
         plant.step(np.zeros(plant.hand.n_joints))
-    mpc = ContactImplicitMPC.from_env(env, plant, settings=MPCSettings(max_iter=200, compile=False))
+    settings, cost = MPCSettings(max_iter=200, compile=False), env.cost(plant, balance=0.0)
+    mpc = ContactImplicitMPC.from_env(env, plant, settings=settings, cost=cost)
     q, contacts = torch.as_tensor(plant.state()), plant.contacts(torch.float64)
     assert plant.detector.found >= 2
     p, quat = torch.as_tensor(target[:3]), torch.as_tensor(target[3:])

@@ -127,22 +127,30 @@ class ObjectMesh:
         rotation = _rotation_matrix(_unit_quaternion("quat", quat))
         return float(-(self.vertices @ rotation[2]).min())
 
+    def base(self, base_tolerance: float = 1e-3) -> ConvexHull | None:
+        """The face the upright object stands on: the hull, in the body's x, y [m], of the
+        vertices within ``base_tolerance`` [m] of the lowest; None where it has no area (a
+        point or an edge: a ball, a rod on its round side)."""
+        vertices = self.vertices
+        lowest = vertices[vertices[:, 2] <= vertices[:, 2].min() + base_tolerance, :2]
+        try:
+            return ConvexHull(lowest)
+        except QhullError:  # fewer than 3 points, or all on a line
+            return None
+
     def tipping_ratio(self, base_tolerance: float = 1e-3) -> float:
         """How easily the upright object tips over: h / r (≥ 0, inf on a point or edge base).
 
         h is the height of the origin (the pose point, where the MPC's contact cost pulls the
         fingertips) above the ground, r the distance from the centre of mass to the nearest
-        edge of the base, the hull of the vertices within ``base_tolerance`` [m] of the lowest.
-        A horizontal push at height h against ground friction μ tips the object before it
-        slides when μ·h/r > 1 (moments about that edge, the push just overcoming μ·m·g).
+        edge of the base (:meth:`base`). A horizontal push at height h against ground
+        friction μ tips the object before it slides when μ·h/r > 1 (moments about that edge,
+        the push just overcoming μ·m·g).
         """
-        vertices = self.vertices
-        h = -float(vertices[:, 2].min())
-        base = vertices[vertices[:, 2] <= -h + base_tolerance, :2]
-        try:
-            hull = ConvexHull(base)
-        except QhullError:  # fewer than 3 points, or all on a line: no area to stand on
+        hull = self.base(base_tolerance)
+        if hull is None:
             return math.inf
+        h = -float(self.vertices[:, 2].min())
         # hull.equations: rows (n, offset) with n·x + offset ≤ 0 inside, ‖n‖ = 1
         inside = -(hull.equations[:, :2] @ self.centre_of_mass[:2] + hull.equations[:, 2])
         r = float(inside.min())

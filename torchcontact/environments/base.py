@@ -92,6 +92,8 @@ class Environment:
         support_pass: whether its MPC's complementarity-free model resolves the contacts
             with static bodies in a second pass
             (:attr:`~torchcontact.model.ComplementarityFree.support_pass`), the measured best.
+        balance: the weight of its cost's balance term
+            (:func:`~torchcontact.environments.costs.balance_cost`); 0 where it has none.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -105,6 +107,7 @@ class Environment:
     default_stiffness: float
     planner: str = "lbfgs"
     support_pass: bool = False
+    balance: float = 0.0
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -141,12 +144,14 @@ class Environment:
         support: bool | None = None,
         margin: float | None = None,
         spread: float | None = None,
+        balance: float | None = None,
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
         holds it, on or off (None: the environment's default; environments whose objects rest
         on the ground refuse on); ``spread``: how far along a long object its contact term
-        draws the tips (hands only; None: the environment's default)."""
+        draws the tips; ``balance``: the weight of its term against pushes that tip the object
+        over its base (both hands only; None: the environment's default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

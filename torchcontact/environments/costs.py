@@ -6,13 +6,20 @@ fingertips are world positions ``tips (..., n_tips, 3)`` [m], from forward kinem
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import torch
 
-from torchcontact.rotations import quaternion_error, quaternion_to_matrix, up_axis
+from torchcontact.rotations import (
+    quaternion_error,
+    quaternion_log,
+    quaternion_multiply,
+    quaternion_to_matrix,
+    up_axis,
+)
 
 
 def position_cost(p: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -73,6 +80,124 @@ def support_cost(p: torch.Tensor, region: tuple[float, float, float, float]) -> 
     return ((lower - xy).clamp_min(0).square() + (xy - upper).clamp_min(0).square()).sum(-1)
 
 
+BALANCE_DIRECTIONS = 16
+"""Directions, evenly spaced about the vertical, in which :class:`Balance` holds its base."""
+
+HOLDING_DISTANCE = 0.005
+"""[m] A contact of the object with a moving body (a fingertip) this close holds it, for
+:meth:`Balance.observe`: the hands' detection margin, so a second finger on its way in opens
+the way for the first one's push."""
+
+
+def balance_directions(dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:
+    """``(BALANCE_DIRECTIONS, 2)`` unit vectors in the body's x, y plane, the first along x."""
+    angles = torch.arange(BALANCE_DIRECTIONS, dtype=dtype, device=device)
+    angles = angles * (2 * math.pi / BALANCE_DIRECTIONS)
+    return torch.stack([angles.cos(), angles.sin()], -1)
+
+
+class Balance:
+    """What :func:`balance_cost` needs to know of an object standing on a flat support (ours).
+
+    The per-object values are tensors of one shape for every object, so a compiled plan traces
+    them as inputs and one graph serves all objects; the repr names the settings only, for the
+    same reason (it keys the compiled graphs).
+
+    The term applies while the object stands alone: :meth:`observe` sets ``alone`` (a 0-d
+    tensor, 1 or 0) from the contacts at the start of each plan. Two or more fingers touching
+    it hold it as well as the support does, which the centre of pressure on the support alone
+    does not tell: a grasp may carry an object tilted past its base's edge.
+
+    Args:
+        reaches: ``(BALANCE_DIRECTIONS,)`` [m], how far the base reaches from the centre of
+            mass, seen from above, along each of :func:`balance_directions` in the body frame
+            (the base's support function): all positive when the centre stands over the base.
+        height: [m] of the pose point above the base.
+        friction: μ between the object and its support.
+        lever: the model's rotational over translational metric [m²] (0.1/50 in the hands'):
+            the moment per radian over the force per metre the model's object answers with.
+        weight: the object's weight over the translational metric [m] (the model's free
+            fall in one step, g·h²/ε).
+        threshold: the fraction of the base's reach the centre of pressure may take before
+            the term charges.
+    """
+
+    def __init__(self, reaches, height: float, friction: float, lever: float, weight: float,
+                 threshold: float = 0.5):  # fmt: skip
+        reaches = torch.as_tensor(reaches, dtype=torch.float64)
+        if reaches.shape != (BALANCE_DIRECTIONS,) or not bool((reaches > 0).all()):
+            raise ValueError(
+                f"reaches must be {BALANCE_DIRECTIONS} positive distances [m] (the centre of "
+                f"mass over the base), got {reaches.tolist()}"
+            )
+        for name, value in (("height", height), ("friction", friction), ("lever", lever),
+                            ("weight", weight), ("threshold", threshold)):  # fmt: skip
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        self.reaches = reaches
+        self.facts = torch.tensor([height, friction], dtype=torch.float64)
+        self.lever, self.weight, self.threshold = float(lever), float(weight), float(threshold)
+        self.alone = torch.ones((), dtype=torch.float64)
+
+    def observe(self, contacts) -> None:
+        """Set :attr:`alone` from ``contacts`` (unbatched, with ``static`` marked, as a
+        :class:`~torchcontact.sim.detect.ContactDetector` gives them): 1 when at most one
+        contact with a moving body lies within :data:`HOLDING_DISTANCE`, else 0."""
+        if contacts.static is None:
+            raise ValueError("contacts.static is None: the balance term needs it marked")
+        holding = contacts.active & ~contacts.static & (contacts.phi <= HOLDING_DISTANCE)
+        self.alone.fill_(float(int(holding.sum()) <= 1))
+
+    @staticmethod
+    def of_base(points, centre, **values) -> Balance:
+        """The balance of a base whose outline passes through ``points (n, 2)`` [m] (body x, y)
+        around a centre of mass at ``centre (2,)``; ``values``: the other arguments."""
+        offsets = torch.as_tensor(points, dtype=torch.float64) - torch.as_tensor(
+            centre, dtype=torch.float64
+        )
+        reaches = (offsets @ balance_directions().T).amax(0)
+        return Balance(reaches, **values)
+
+    def __repr__(self) -> str:
+        return (
+            f"Balance(directions={BALANCE_DIRECTIONS}, lever={self.lever!r}, "
+            f"weight={self.weight!r}, threshold={self.threshold!r})"
+        )
+
+
+def balance_cost(positions: torch.Tensor, quats: torch.Tensor, balance: Balance) -> torch.Tensor:
+    """``Σₜ max(0, sₜ − threshold)²`` of a planned rollout, shape ``(...)`` (ours).
+
+    The model's object moves by its metric's answer to the net push of the robot, so each
+    planned step ``(pₜ, qₜ) → (pₜ₊₁, qₜ₊₁)`` tells the force F and the moment τ (about the pose
+    point) the plan puts on the object. The support must answer them: its centre of pressure
+    lies at ``(τ⊥ + z·F_h)/N`` from the centre of mass (z the pose point's height, τ⊥ = (τ_y,
+    −τ_x)), with ``N`` the weight while the push is held by static friction and ``|F_h|/μ`` once
+    it slides. ``sₜ`` is that offset over the base's reach in its direction (the largest
+    ratio over the base's directions): at 1 the object starts to tip over the base's edge. A
+    push at a height where it tips the object instead of sliding it costs; one low enough,
+    or a pair that turns the object without a net push, does not. Zero while the object is
+    held (:attr:`Balance.alone`). Positions ``(..., T+1, 3)`` [m] and quaternions
+    ``(..., T+1, 4)`` as the cost's.
+    """
+    step = positions[..., 1:, :] - positions[..., :-1, :]
+    previous = quats[..., :-1, :]
+    inverse = previous * previous.new_tensor([1.0, -1.0, -1.0, -1.0])
+    turn = quaternion_log(quaternion_multiply(quats[..., 1:, :], inverse))  # world frame
+    height, friction = balance.facts.to(positions).unbind()
+    force = step[..., :2]  # per unit of translational metric [m]
+    moment = balance.lever * torch.stack([turn[..., 1], -turn[..., 0]], -1) + height * force
+    sliding = force.square().sum(-1, keepdim=True) / friction.square()
+    offset = moment / (balance.weight**2 + sliding).sqrt()  # world x, y [m]
+    # into the body frame at the step's start (the object stands near upright)
+    rotation = quaternion_to_matrix(previous)[..., :2, :2]
+    body = (offset.unsqueeze(-2) @ rotation).squeeze(-2)  # rows dᵀR = (Rᵀd)ᵀ
+    directions = balance_directions(positions.dtype, positions.device)
+    share = (body @ directions.T) / balance.reaches.to(positions)
+    charge = (share.amax(-1) - balance.threshold).clamp_min(0).square().sum(-1)
+    return balance.alone.to(positions) * charge
+
+
 @dataclass(frozen=True)
 class ManipulationCost:
     """Σₜ c(qₜ, uₜ) + V(q_T) with the paper's weights.
@@ -121,6 +246,8 @@ class ManipulationCost:
     support_weight: float = 1e5
     contact_floor: float | None = None
     contact_axis: tuple[float, float, float] | None = None
+    balance: Balance | None = None
+    balance_weight: float = 1.0
 
     def __call__(
         self,
@@ -164,7 +291,15 @@ class ManipulationCost:
         if self.support is not None:
             outside = support_cost(positions[..., 1:, :], self.support).sum(-1)
             total = total + self.support_weight * outside
+        if self.balance is not None:
+            total = total + self.balance_weight * balance_cost(positions, quats, self.balance)
         return total
+
+    def observe(self, contacts) -> None:
+        """Take in the contacts at the start of a plan (the MPC calls it before each solve):
+        whether the balance term applies (:meth:`Balance.observe`)."""
+        if self.balance is not None:
+            self.balance.observe(contacts)
 
 
 class Cost(Protocol):
@@ -175,6 +310,9 @@ class Cost(Protocol):
     and the target ``target_position (..., 3)`` [m], ``target_quat (..., 4)``; returns the
     total cost ``(...)``, rows independent. It must be differentiable (``torch.func.grad``)
     and, to be compiled into the planner, free of host syncs and data-dependent branches.
+    A cost may also have an ``observe(contacts)`` method, which the MPC calls with the
+    contacts at the start of each plan, outside the compiled graph
+    (:meth:`ManipulationCost.observe`).
     """
 
     def __call__(

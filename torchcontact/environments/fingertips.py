@@ -87,11 +87,14 @@ class FingertipsEnvironment(Environment):
         support: bool | None = None,
         margin: float | None = None,
         spread: float | None = None,
+        balance: float | None = None,
     ) -> ManipulationCost:
         if support or margin is not None:
             raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
         if spread is not None:
             raise ValueError("spread: the fingertips keep the paper's contact term")
+        if balance:
+            raise ValueError("balance: the fingertips keep the paper's cost, with no balance term")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):
