@@ -230,3 +230,29 @@ def test_the_cli_refuses_a_meaningless_balance(capsys):
         with pytest.raises(SystemExit):
             main(["run", *argv, "--trials", "1"])
         assert message in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_balance_cost_and_its_gate_run_on_cuda():
+    base = square_base(0.01, 0.05)
+    steps = torch.tensor([[0.002, 0.0, 0.0]] * 3, dtype=F64)
+    positions, quats = rollout(steps)
+    expected = balance_cost(positions, quats, base)
+    moved = positions.cuda().float().requires_grad_()
+    on_gpu = balance_cost(moved, quats.cuda().float(), base)
+    assert on_gpu.device.type == "cuda"
+    torch.testing.assert_close(on_gpu.double().cpu(), expected, rtol=1e-4, atol=1e-6)
+    (grad,) = torch.autograd.grad(on_gpu, moved)
+    assert torch.isfinite(grad).all()
+    n, nv = 5, 15
+    contacts = Contacts(
+        phi=torch.zeros(n, device="cuda"),
+        jac_normal=torch.zeros(n, nv, device="cuda"),
+        jac_tangent=torch.zeros(n, 2, nv, device="cuda"),
+        mu=torch.full((n,), 0.5, device="cuda"),
+        active=torch.ones(n, dtype=torch.bool, device="cuda"),
+        static=torch.tensor([True, True, True, False, False], device="cuda"),
+    )
+    base.observe(contacts)  # two fingers touch: held
+    assert float(base.alone) == 0.0
+    assert float(balance_cost(positions.cuda(), quats.cuda(), base)) == 0.0
