@@ -135,8 +135,9 @@ def test_the_baseline_refuses_what_it_cannot_solve(scene):
         IpoptMPC(ContactImplicitMPC.from_env(fingertips, cube, settings=propagated), n_rows=32)
     with pytest.raises(ValueError, match="qp"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, "relaxed_qp", settings=EAGER), 60)
+    balanced = trifinger.cost(hand, balance=1.0)
     with pytest.raises(ValueError, match="not the balance term"):
-        IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER), 60)
+        IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=balanced), 60)
     paper_cost = trifinger.cost(hand, balance=0.0)
     hand_mpc = ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=paper_cost)
     with pytest.raises(ValueError, match="tip_height"):

@@ -280,8 +280,6 @@ TRIFINGER_ENV = HandEnvironment(
         object_mass=PAPER_OBJECT_MASS,
         # plates thinner than a tip's diameter: 4 → 14 of 14 tuning trials (docs/experiments.md)
         contact_floor=True,
-        # pushes that tip a lone object over: 173 → 180 of 200 tuning trials (docs/experiments.md)
-        balance=1.0,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,
