@@ -37,24 +37,26 @@ def tips_before_sliding(obj: ObjectMesh, mu: float = MODEL_FRICTION) -> bool:
 
 
 def balance_of(plant: HandEnv, metric, threshold: float) -> Balance | None:
-    """The :class:`Balance` of ``plant``'s object on its support, from its geometry; None where
-    its base has no area or its centre of mass does not stand over it."""
+    """The :class:`Balance` of ``plant``'s object on its support, from its geometry and the
+    model's ``metric`` (εMₒ/h² of a 10 g object); None where its base has no area or its centre
+    of mass does not stand over it."""
     obj = plant.object
     hull = obj.base()
     if hull is None:
         return None
-    try:
-        return Balance.of_base(
-            hull.points[hull.vertices],
-            obj.centre_of_mass[:2],
-            height=-float(obj.vertices[:, 2].min()),
-            friction=max(plant.object_friction, plant.ground_friction),
-            lever=metric[3] / metric[0],
-            weight=9.81 * PAPER_OBJECT_MASS / HAND_METRIC[0],
-            threshold=threshold,
-        )
-    except ValueError:  # the centre of mass beyond an edge of the base
+    # hull.equations: rows (n, offset) with n·x + offset ≤ 0 inside
+    inside = -(hull.equations[:, :2] @ obj.centre_of_mass[:2] + hull.equations[:, 2])
+    if not (inside > 0).all():
         return None
+    return Balance.of_base(
+        hull.points[hull.vertices],
+        obj.centre_of_mass[:2],
+        height=-float(obj.vertices[:, 2].min()),
+        friction=max(plant.object_friction, plant.ground_friction),
+        lever=metric[3] / metric[0],
+        weight=9.81 * PAPER_OBJECT_MASS / metric[0],
+        threshold=threshold,
+    )
 
 
 @dataclass(frozen=True)
