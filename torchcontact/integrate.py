@@ -7,7 +7,12 @@ from collections.abc import Mapping, Sequence
 import torch
 
 from torchcontact.functional import Scalar
-from torchcontact.rotations import quaternion_exp, quaternion_log, quaternion_multiply
+from torchcontact.rotations import (
+    quaternion_conjugate,
+    quaternion_exp,
+    quaternion_log,
+    quaternion_multiply,
+)
 from torchcontact.validation import (
     check_broadcasts_to,
     check_finite,
@@ -212,8 +217,7 @@ def difference(q0: torch.Tensor, q1: torch.Tensor, h: Scalar, layout: JointLayou
     linear_q, quat_q = layout.linear_q.to(device), layout.quat_q.to(device)
     linear = (q1[..., linear_q] - q0[..., linear_q]) / h
     start, end = q0[..., quat_q], q1[..., quat_q]
-    inverse = start * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=start.dtype, device=device)
-    relative = quaternion_multiply(inverse, end)
+    relative = quaternion_multiply(quaternion_conjugate(start), end)
     relative = relative / torch.linalg.vector_norm(relative, dim=-1, keepdim=True)
     angular = quaternion_log(relative).flatten(-2) / h
     batch = torch.broadcast_shapes(linear.shape[:-1], angular.shape[:-1])

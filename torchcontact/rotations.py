@@ -22,6 +22,11 @@ def quaternion_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack((w, x, y, z), -1)
 
 
+def quaternion_conjugate(quat: torch.Tensor) -> torch.Tensor:
+    """``q* (..., 4)``: the vector part negated; the inverse rotation of a unit ``quat``."""
+    return quat * quat.new_tensor([1.0, -1.0, -1.0, -1.0])
+
+
 def quaternion_exp(rotation: torch.Tensor) -> torch.Tensor:
     """Unit quaternion ``(..., 4)`` of the rotation vector ``rotation: (..., 3)`` [rad].
 

@@ -138,6 +138,12 @@ class ObjectMesh:
         except QhullError:  # fewer than 3 points, or all on a line
             return None
 
+    def edge_distances(self, base: ConvexHull) -> np.ndarray:
+        """``(K,)`` distances [m] from the centre of mass, seen from above, to the lines of the
+        edges of ``base`` (:meth:`base`): positive on their inner side."""
+        # base.equations: rows (n, offset) with n·x + offset ≤ 0 inside, ‖n‖ = 1
+        return -(base.equations[:, :2] @ self.centre_of_mass[:2] + base.equations[:, 2])
+
     def tipping_ratio(self, base_tolerance: float = 1e-3) -> float:
         """How easily the upright object tips over: h / r (≥ 0, inf on a point or edge base).
 
@@ -150,11 +156,8 @@ class ObjectMesh:
         hull = self.base(base_tolerance)
         if hull is None:
             return math.inf
-        h = -float(self.vertices[:, 2].min())
-        # hull.equations: rows (n, offset) with n·x + offset ≤ 0 inside, ‖n‖ = 1
-        inside = -(hull.equations[:, :2] @ self.centre_of_mass[:2] + hull.equations[:, 2])
-        r = float(inside.min())
-        return h / r if r > 0 else math.inf
+        r = float(self.edge_distances(hull).min())
+        return self.resting_height() / r if r > 0 else math.inf
 
 
 def object_names() -> tuple[str, ...]:

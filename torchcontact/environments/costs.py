@@ -14,6 +14,7 @@ from typing import Protocol
 import torch
 
 from torchcontact.rotations import (
+    quaternion_conjugate,
     quaternion_error,
     quaternion_log,
     quaternion_multiply,
@@ -104,9 +105,10 @@ class Balance:
     same reason (it keys the compiled graphs).
 
     The term applies while the object stands alone: :meth:`observe` sets ``alone`` (a 0-d
-    tensor, 1 or 0) from the contacts at the start of each plan. Two or more fingers touching
-    it hold it as well as the support does, which the centre of pressure on the support alone
-    does not tell: a grasp may carry an object tilted past its base's edge.
+    tensor, 1 or 0) from the contacts at the start of each plan. Two or more fingers within
+    :data:`HOLDING_DISTANCE` of it hold it as well as the support does, which the centre of
+    pressure on the support alone does not tell: a grasp may carry an object tilted past its
+    base's edge.
 
     Args:
         reaches: ``(BALANCE_DIRECTIONS,)`` [m], how far the base reaches from the centre of
@@ -182,8 +184,7 @@ def balance_cost(positions: torch.Tensor, quats: torch.Tensor, balance: Balance)
     """
     step = positions[..., 1:, :] - positions[..., :-1, :]
     previous = quats[..., :-1, :]
-    inverse = previous * previous.new_tensor([1.0, -1.0, -1.0, -1.0])
-    turn = quaternion_log(quaternion_multiply(quats[..., 1:, :], inverse))  # world frame
+    turn = quaternion_log(quaternion_multiply(quats[..., 1:, :], quaternion_conjugate(previous)))
     height, friction = balance.facts.to(positions).unbind()
     force = step[..., :2]  # per unit of translational metric [m]
     moment = balance.lever * torch.stack([turn[..., 1], -turn[..., 0]], -1) + height * force

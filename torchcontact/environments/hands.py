@@ -44,14 +44,12 @@ def balance_of(plant: HandEnv, metric, threshold: float) -> Balance | None:
     hull = obj.base()
     if hull is None:
         return None
-    # hull.equations: rows (n, offset) with n·x + offset ≤ 0 inside
-    inside = -(hull.equations[:, :2] @ obj.centre_of_mass[:2] + hull.equations[:, 2])
-    if not (inside > 0).all():
+    if not (obj.edge_distances(hull) > 0).all():
         return None
     return Balance.of_base(
         hull.points[hull.vertices],
         obj.centre_of_mass[:2],
-        height=-float(obj.vertices[:, 2].min()),
+        height=obj.resting_height(),
         friction=max(plant.object_friction, plant.ground_friction),
         lever=metric[3] / metric[0],
         weight=9.81 * PAPER_OBJECT_MASS / metric[0],
