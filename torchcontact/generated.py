@@ -227,8 +227,8 @@ def _stretch(rested: ObjectMesh, sides: np.ndarray) -> np.ndarray:
 def _base_margin(obj: ObjectMesh) -> float:
     """Distance [m] from the centre of mass, seen from above, to the nearest edge of the base
     (0 where it is not over the base)."""
-    ratio = obj.tipping_ratio()
-    return float(obj.resting_height() / ratio) if np.isfinite(ratio) else 0.0
+    base = obj.base()
+    return 0.0 if base is None else max(float(obj.edge_distances(base).min()), 0.0)
 
 
 def _extents(parts) -> np.ndarray:
