@@ -67,8 +67,8 @@ def run_trial(
     env = environment(env_name)
     plant = env.make_plant(obj)
     preset = dataclasses.replace(env.preset(), compile=compile)
-    # the paper's problem on both sides: the balance term is ours, not in the CasADi NLP
-    cost = env.cost(plant, balance=0.0)
+    # the paper's problem on both sides: the balance and hold terms are ours, not in its NLP
+    cost = env.cost(plant, balance=0.0, hold_first=0)
     ours = ContactImplicitMPC.from_env(env, plant, settings=preset, cost=cost)
     problem = ContactImplicitMPC.from_env(
         env, plant, settings=dataclasses.replace(PAPER, compile=False), cost=cost

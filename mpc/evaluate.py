@@ -138,6 +138,14 @@ def build_parser() -> argparse.ArgumentParser:
         "its base's edge, from its geometry (0: off); default the environment's",
     )
     parser.add_argument(
+        "--hold-first",
+        type=int,
+        default=None,
+        help="(hands) for objects that tip before they slide, how many fingertip contacts "
+        "must hold the object before the plan moves it toward its target (0: off); default "
+        "the environment's",
+    )
+    parser.add_argument(
         "--support-pass",
         choices=("on", "off"),
         default=None,
@@ -267,6 +275,7 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         "--support": args.support is not None or args.support_margin is not None,
         "--contact-spread": args.contact_spread is not None,
         "--balance": args.balance is not None,
+        "--hold-first": args.hold_first is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
@@ -275,6 +284,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--contact-spread must be a number >= 0, got {args.contact_spread}")
     if args.balance is not None and not 0 <= args.balance < math.inf:
         parser.error(f"--balance must be a weight >= 0, got {args.balance}")
+    if args.hold_first is not None and args.hold_first < 0:
+        parser.error(f"--hold-first must be a number of contacts >= 0, got {args.hold_first}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -304,7 +315,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
         # a cost option: a scene it applies to and a value that fits, before any trial
-        terms = (args.support, args.support_margin, args.contact_spread, args.balance)
+        terms = (
+            args.support,
+            args.support_margin,
+            args.contact_spread,
+            args.balance,
+            args.hold_first,
+        )
         if args.support or any(term is not None for term in terms[1:]):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
             env.cost(plant, *terms)
@@ -464,9 +481,11 @@ def main(argv: list[str] | None = None) -> int:
     planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
     support = ", support pass" if configs[0].support_pass else ""
     balance = f", balance term {configs[0].balance:g}" if configs[0].balance else ""
+    hold = configs[0].hold_first
+    hold = f", held by {hold} contacts before it moves" if hold else ""
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
-        f"{args.settings.label}{planner}{balance}"
+        f"{args.settings.label}{planner}{balance}{hold}"
     )
     for line in describe_objects(args):
         print(line)

@@ -86,6 +86,7 @@ LEGACY_DEFAULTS = {
     "contact_spread": None,
     "support_pass": False,
     "balance": 0.0,
+    "hold_first": 0,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -181,6 +182,9 @@ class TrialConfig:
         balance: the weight of the cost's balance term (:func:`~torchcontact.environments
             .costs.balance_cost`; 0: none); :func:`trial_configs` gives the environment's
             unless told.
+        hold_first: the contacts that must hold an object that tips before it slides before
+            the plan moves it (:class:`~torchcontact.environments.costs.HoldFirst`; 0: none);
+            :func:`trial_configs` gives the environment's unless told.
     """
 
     env: str
@@ -213,6 +217,7 @@ class TrialConfig:
     contact_spread: float | None = None
     support_pass: bool = False
     balance: float = 0.0
+    hold_first: int = 0
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -338,6 +343,8 @@ def trial_configs(
         options["support_pass"] = description.support_pass and not qp
     if options.get("balance") is None:
         options["balance"] = description.balance if options.get("cost") is None else 0.0
+    if options.get("hold_first") is None:
+        options["hold_first"] = description.hold_first if options.get("cost") is None else 0
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -409,9 +416,11 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             margin=config.support_margin,
             spread=config.contact_spread,
             balance=config.balance,
+            hold_first=config.hold_first,
         )
-    elif config.balance:
-        raise ValueError(f"balance is a term of the environment's cost, not {cost!r}")
+    elif config.balance or config.hold_first:
+        term = "balance" if config.balance else "hold_first"
+        raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True
     )

@@ -138,6 +138,10 @@ def test_the_baseline_refuses_what_it_cannot_solve(scene):
     balanced = trifinger.cost(hand, balance=1.0)
     with pytest.raises(ValueError, match="not the balance term"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=balanced), 60)
+    bottle = trifinger.make_plant("water_bottle")  # tips before it slides: held first
+    held = trifinger.cost(bottle, hold_first=2)
+    with pytest.raises(ValueError, match="not the hold term"):
+        IpoptMPC(ContactImplicitMPC.from_env(trifinger, bottle, settings=EAGER, cost=held), 60)
     paper_cost = trifinger.cost(hand, balance=0.0)
     hand_mpc = ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=paper_cost)
     with pytest.raises(ValueError, match="tip_height"):

@@ -94,6 +94,9 @@ class Environment:
             (:attr:`~torchcontact.model.ComplementarityFree.support_pass`), the measured best.
         balance: the weight of its cost's balance term
             (:func:`~torchcontact.environments.costs.balance_cost`); 0 where it has none.
+        hold_first: how many fingertip contacts must hold an object that tips before it
+            slides before its MPC moves it (:class:`~torchcontact.environments.costs
+            .HoldFirst`); 0 where it moves it at once.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -108,6 +111,7 @@ class Environment:
     planner: str = "lbfgs"
     support_pass: bool = False
     balance: float = 0.0
+    hold_first: int = 0
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -145,13 +149,16 @@ class Environment:
         margin: float | None = None,
         spread: float | None = None,
         balance: float | None = None,
+        hold_first: int | None = None,
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
         holds it, on or off (None: the environment's default; environments whose objects rest
         on the ground refuse on); ``spread``: how far along a long object its contact term
         draws the tips; ``balance``: the weight of its term against pushes that tip the object
-        over its base (both hands only; None: the environment's default)."""
+        over its base; ``hold_first``: the contacts that must hold an object that tips before
+        it slides before the plan moves it (both hands only; None: the environment's
+        default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

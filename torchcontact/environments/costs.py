@@ -97,6 +97,59 @@ def balance_directions(dtype: torch.dtype = torch.float64, device=None) -> torch
     return torch.stack([angles.cos(), angles.sin()], -1)
 
 
+def holding_contacts(contacts, term: str) -> int:
+    """How many of ``contacts`` (unbatched, with ``static`` marked, as a
+    :class:`~torchcontact.sim.detect.ContactDetector` gives them) are with a moving body (a
+    fingertip) and within :data:`HOLDING_DISTANCE`; ``term`` names the cost term asking."""
+    if contacts.static is None:
+        raise ValueError(f"contacts.static is None: {term} needs it marked")
+    holding = contacts.active & ~contacts.static & (contacts.phi <= HOLDING_DISTANCE)
+    return int(holding.sum())
+
+
+class HoldFirst:
+    """Keep a lone object where it stands until fingers hold it (ours).
+
+    A push by one fingertip tips over an object whose base is narrow for its height before
+    it slides it, and the quasi-static model, which carries no momentum, predicts a fraction
+    of that tilt, so a plan pulled toward the target pushes with the first tip to arrive.
+    While fewer than ``grip`` contacts with moving bodies lie within
+    :data:`HOLDING_DISTANCE` of the object (:meth:`observe`, at the start of each plan), the
+    cost's final pose term aims at the object's pose at the plan's start instead of the
+    target, so the tips close on it first and move it held between them.
+
+    ``held`` (a 0-d tensor, 1 or 0) is an input of a compiled plan, and the repr names the
+    setting only, so one graph serves every object.
+    """
+
+    def __init__(self, grip: int = 2):
+        if isinstance(grip, bool) or not isinstance(grip, int) or grip < 1:
+            raise ValueError(f"grip must be a whole number of contacts >= 1, got {grip!r}")
+        self.grip = grip
+        self.held = torch.zeros((), dtype=torch.float64)
+
+    def observe(self, contacts) -> None:
+        """Set :attr:`held` from ``contacts``: 1 when at least :attr:`grip` contacts with
+        moving bodies lie within :data:`HOLDING_DISTANCE`, else 0."""
+        self.held.fill_(float(holding_contacts(contacts, "the hold-first term") >= self.grip))
+
+    def aims(
+        self,
+        positions: torch.Tensor,
+        quats: torch.Tensor,
+        target_position: torch.Tensor,
+        target_quat: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pose ``(..., 3), (..., 4)`` the plan aims at: the target when held, else the
+        start ``positions[..., 0, :]``, ``quats[..., 0, :]`` of the rollout."""
+        held = self.held.to(positions)
+        position = held * target_position + (1 - held) * positions[..., 0, :]
+        return position, held * target_quat + (1 - held) * quats[..., 0, :]
+
+    def __repr__(self) -> str:
+        return f"HoldFirst(grip={self.grip!r}, distance={HOLDING_DISTANCE!r})"
+
+
 class Balance:
     """What :func:`balance_cost` needs to know of an object standing on a flat support (ours).
 
@@ -145,10 +198,7 @@ class Balance:
         """Set :attr:`alone` from ``contacts`` (unbatched, with ``static`` marked, as a
         :class:`~torchcontact.sim.detect.ContactDetector` gives them): 1 when at most one
         contact with a moving body lies within :data:`HOLDING_DISTANCE`, else 0."""
-        if contacts.static is None:
-            raise ValueError("contacts.static is None: the balance term needs it marked")
-        holding = contacts.active & ~contacts.static & (contacts.phi <= HOLDING_DISTANCE)
-        self.alone.fill_(float(int(holding.sum()) <= 1))
+        self.alone.fill_(float(holding_contacts(contacts, "the balance term") <= 1))
 
     @staticmethod
     def of_base(points, centre, **values) -> Balance:
@@ -229,6 +279,9 @@ class ManipulationCost:
     friction then holds them (the model has no tip–support contact to tell it so). None: the
     object's centre, the paper's.
 
+    ``hold`` (:class:`HoldFirst`) aims every target term at the object's pose at the plan's
+    start until enough fingers hold it. None: at the target throughout, the paper's.
+
     ``contact_axis (3,)`` [m], in the body frame, turns the contact term into
     :func:`axis_contact_cost`: each tip is drawn toward its nearest point of the segment
     ``p ± R(q)·contact_axis`` instead of the centre p. None: the centre, the paper's.
@@ -249,6 +302,7 @@ class ManipulationCost:
     contact_axis: tuple[float, float, float] | None = None
     balance: Balance | None = None
     balance_weight: float = 1.0
+    hold: HoldFirst | None = None
 
     def __call__(
         self,
@@ -268,6 +322,10 @@ class ManipulationCost:
             controls: ``(..., T, n_u)`` controls u₀…u_{T−1}.
             target_position: ``(..., 3)``; target_quat: ``(..., 4)``.
         """
+        if self.hold is not None:
+            target_position, target_quat = self.hold.aims(
+                positions, quats, target_position, target_quat
+            )
         p, quat, tip = positions[..., :-1, :], quats[..., :-1, :], tips[..., :-1, :, :]
         anchor = p if self.contact_floor is None else raised(p, self.contact_floor)
         if self.contact_axis is None:
@@ -298,9 +356,12 @@ class ManipulationCost:
 
     def observe(self, contacts) -> None:
         """Take in the contacts at the start of a plan (the MPC calls it before each solve):
-        whether the balance term applies (:meth:`Balance.observe`)."""
+        whether the balance term applies (:meth:`Balance.observe`) and whether the object is
+        held (:meth:`HoldFirst.observe`)."""
         if self.balance is not None:
             self.balance.observe(contacts)
+        if self.hold is not None:
+            self.hold.observe(contacts)
 
 
 class Cost(Protocol):

@@ -14,7 +14,7 @@ import torch
 
 from torchcontact.environments import tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, ObjectModel
-from torchcontact.environments.costs import Balance, Cost, ManipulationCost
+from torchcontact.environments.costs import Balance, Cost, HoldFirst, ManipulationCost
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions
@@ -92,6 +92,9 @@ class HandModel:
             object that stands on a base (:func:`balance_of`); 0: none.
         balance_threshold: the share of the base's reach from the centre of mass at which
             that term starts to charge (:attr:`~.costs.Balance.threshold`).
+        hold_first: for objects that tip before they slide (:func:`tips_before_sliding`),
+            how many fingertip contacts must hold the object before the plan moves it toward
+            its target (:class:`~.costs.HoldFirst`); 0: it moves it from the first touch.
     """
 
     robot_stiffness: float
@@ -109,6 +112,7 @@ class HandModel:
     support_pass: bool = False
     balance: float = 0.0
     balance_threshold: float = 0.5
+    hold_first: int = 0
 
 
 def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
@@ -159,6 +163,7 @@ class HandEnvironment(Environment):
         self.stiffness = self.default_stiffness = model.stiffness
         self.support_pass = model.support_pass
         self.balance = model.balance
+        self.hold_first = model.hold_first
         self.presets = presets
 
     @functools.cached_property
@@ -191,14 +196,24 @@ class HandEnvironment(Environment):
         margin: float | None = None,
         spread: float | None = None,
         balance: float | None = None,
+        hold_first: int | None = None,
     ) -> Cost:
         """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
         where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
         needs a plant that holds its object on a body); ``margin`` [m]: the term's, instead of
         the model's; ``spread``: the contact term's, instead of
         :attr:`HandModel.contact_spread`; ``balance``: the balance term's weight, instead of
-        :attr:`HandModel.balance` (0: off)."""
+        :attr:`HandModel.balance` (0: off); ``hold_first``: the contacts that must hold an
+        object that tips before it slides before the plan moves it, instead of
+        :attr:`HandModel.hold_first` (0: none)."""
         cost = self.model.cost
+        hold_first = self.model.hold_first if hold_first is None else hold_first
+        if isinstance(hold_first, bool) or not isinstance(hold_first, int) or hold_first < 0:
+            raise ValueError(f"hold_first must be a whole number >= 0, got {hold_first!r}")
+        if hold_first and not isinstance(cost, ManipulationCost):
+            raise ValueError(f"hold_first: {type(cost).__name__} has no target to hold back")
+        if hold_first and tips_before_sliding(plant.object):
+            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first))
         balance = self.model.balance if balance is None else balance
         if not (math.isfinite(balance) and balance >= 0):
             raise ValueError(f"balance must be a non-negative number, got {balance!r}")
@@ -280,6 +295,8 @@ TRIFINGER_ENV = HandEnvironment(
         object_mass=PAPER_OBJECT_MASS,
         # plates thinner than a tip's diameter: 4 → 14 of 14 tuning trials (docs/experiments.md)
         contact_floor=True,
+        # a lone push tips them: 173 → 187 and 187 → 188 of 200 tuning trials (docs/experiments.md)
+        hold_first=2,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,

@@ -1,0 +1,151 @@
+"""The hold-first term of the hands' cost: a lone object that would tip is held where it
+stands until fingertips hold it, for objects chosen by their geometry, and the options that set
+it."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from mpc.trials import LEGACY_DEFAULTS, build_trial, stored_config, trial_configs
+from torchcontact.cli import main
+from torchcontact.contacts import Contacts
+from torchcontact.environments import environment
+from torchcontact.environments.costs import HOLDING_DISTANCE, HoldFirst, ManipulationCost
+from torchcontact.environments.hands import tips_before_sliding
+from torchcontact.sim.hands import HandEnv
+
+F64 = torch.float64
+NV = 15
+
+
+def contacts(phi, static) -> Contacts:
+    """Contacts at distances ``phi`` [m], ``static`` marking the support's; one empty slot."""
+    n = len(phi) + 1
+    return Contacts(
+        phi=torch.tensor([*phi, 1.0], dtype=F64),
+        jac_normal=torch.zeros(n, NV, dtype=F64),
+        jac_tangent=torch.zeros(n, 2, NV, dtype=F64),
+        mu=torch.full((n,), 0.5, dtype=F64),
+        active=torch.tensor([True] * (n - 1) + [False]),
+        static=torch.tensor([*static, False]),
+    )
+
+
+GROUND = ([0.0, 0.0, 0.0], [True, True, True])
+NEAR = HOLDING_DISTANCE / 2
+
+
+def held_by(*tips: float) -> Contacts:
+    return contacts(GROUND[0] + list(tips), GROUND[1] + [False] * len(tips))
+
+
+def test_the_object_counts_as_held_once_enough_fingertips_touch_it():
+    hold = HoldFirst(grip=2)
+    hold.observe(held_by(NEAR))
+    assert float(hold.held) == 0.0
+    hold.observe(held_by(NEAR, NEAR))
+    assert float(hold.held) == 1.0
+    hold.observe(held_by(NEAR, 2 * HOLDING_DISTANCE))  # the second one still on its way
+    assert float(hold.held) == 0.0
+    hold.observe(contacts([0.0] * 4, [True] * 4))  # the support alone holds nothing
+    assert float(hold.held) == 0.0
+    assert float(HoldFirst(grip=1).held) == 0.0
+    one = HoldFirst(grip=1)
+    one.observe(held_by(NEAR))
+    assert float(one.held) == 1.0
+    unmarked = held_by(NEAR, NEAR)
+    with pytest.raises(ValueError, match="contacts.static is None: the hold-first term"):
+        hold.observe(Contacts(**{**vars(unmarked), "static": None}))
+
+
+@pytest.mark.parametrize("grip", [0, -1, 1.5, True, "2"])
+def test_a_meaningless_grip_is_refused(grip):
+    with pytest.raises(ValueError, match="grip must be a whole number of contacts >= 1"):
+        HoldFirst(grip)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_until_held_the_plan_aims_where_the_object_stands(dtype):
+    """Unheld, a rollout that leaves the object where it started has no pose cost, and one
+    that moves it toward the target is charged; held, the cost is the paper's, batched."""
+    batch, horizon, tips = (2, 5), 3, torch.zeros(2, 5, 4, 3, 3, dtype=dtype)
+    start = torch.tensor([0.01, -0.02, 0.03], dtype=dtype)
+    still = start.expand(*batch, horizon + 1, 3).clone()
+    moved = still.clone()
+    moved[..., 1:, 0] += 0.02
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype).expand(*batch, horizon + 1, 4)
+    controls = torch.zeros(*batch, horizon, 9, dtype=dtype)
+    target_p = torch.tensor([0.05, -0.02, 0.03], dtype=dtype).expand(*batch, 3)
+    target_q = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype).expand(*batch, 4)
+    hold = HoldFirst(grip=2)
+    plain, holding = (
+        ManipulationCost(contact=0, grasp=0),
+        ManipulationCost(contact=0, grasp=0, hold=hold),
+    )
+
+    def cost(c, positions):
+        return c(positions, quats, tips, controls, target_p, target_q)
+
+    holding.observe(held_by(NEAR))
+    assert cost(holding, still).shape == batch and cost(holding, still).dtype == dtype
+    assert torch.equal(cost(holding, still), torch.zeros(batch, dtype=dtype))
+    assert bool((cost(holding, moved) > 0).all())
+    assert bool((cost(plain, still) > cost(plain, moved)).all())  # the target pulls it on
+    holding.observe(held_by(NEAR, NEAR))
+    for positions in (still, moved):
+        torch.testing.assert_close(cost(holding, positions), cost(plain, positions))
+
+
+def test_the_hands_hold_the_objects_that_tip_before_they_slide():
+    env = environment("trifinger")
+    tall, wide = HandEnv("trifinger", "water_bottle"), HandEnv("trifinger", "cube")
+    assert tips_before_sliding(tall.object) and not tips_before_sliding(wide.object)
+    cost = env.cost(tall, hold_first=3)
+    assert isinstance(cost, ManipulationCost) and cost.hold.grip == 3
+    assert env.cost(wide, hold_first=3).hold is None  # it slides: a lone push is safe
+    assert env.cost(tall, hold_first=0).hold is None
+    assert env.cost(tall).hold is None if env.hold_first == 0 else env.cost(tall).hold.grip
+    # the repr keys the compiled graphs: one graph for every held object
+    assert repr(cost.hold) == repr(env.cost(HandEnv("trifinger", "binoculars"), hold_first=3).hold)
+    for value in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="hold_first must be a whole number >= 0"):
+            env.cost(tall, hold_first=value)
+    fingertips = environment("fingertips")
+    with pytest.raises(ValueError, match="hold_first: the fingertips keep the paper's cost"):
+        fingertips.cost(fingertips.make_plant("cube"), hold_first=2)
+
+
+def test_a_trial_plans_with_its_hold():
+    configs = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_first=2)
+    assert configs[0].hold_first == 2
+    _, _, mpc = build_trial(configs[0])
+    assert mpc.cost.hold is not None and mpc.cost.hold.grip == 2
+    default = trial_configs("trifinger", [("in-hand", "cube")], [0])[0]
+    assert default.hold_first == environment("trifinger").hold_first
+    assert trial_configs("fingertips", [("rotation", "cube")], [0])[0].hold_first == 0
+    old = {key: value for key, value in vars(default).items() if key != "hold_first"}
+    assert stored_config(old)["hold_first"] == LEGACY_DEFAULTS["hold_first"] == 0  # ran without
+
+
+def test_the_cli_refuses_a_meaningless_hold(capsys):
+    for argv, message in (
+        (["trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts >= 0"),
+        (["trifinger", "--hold-first", "2", "--cost", "pushing"], "--hold-first is a term of"),
+        (["fingertips", "--hold-first", "2"], "hold_first: the fingertips keep the paper's"),
+    ):
+        with pytest.raises(SystemExit):
+            main(["run", *argv, "--trials", "1"])
+        assert message in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_the_hold_runs_on_cuda():
+    hold = HoldFirst(grip=2)
+    hold.observe(held_by(NEAR))
+    positions = torch.zeros(4, 3, device="cuda", requires_grad=True)
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], device="cuda").expand(4, 4)
+    aim, turn = hold.aims(positions, quats, positions.new_ones(3), quats.new_tensor([0, 0, 0, 1]))
+    assert aim.device.type == "cuda" and torch.equal(turn.cpu(), quats[0].cpu())
+    (grad,) = torch.autograd.grad(aim.sum(), positions)
+    assert torch.isfinite(grad).all()
