@@ -482,7 +482,7 @@ def main(argv: list[str] | None = None) -> int:
     support = ", support pass" if configs[0].support_pass else ""
     balance = f", balance term {configs[0].balance:g}" if configs[0].balance else ""
     hold = configs[0].hold_first
-    hold = f", held by {hold} contacts before it moves" if hold else ""
+    hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
         f"{args.settings.label}{planner}{balance}{hold}"

@@ -115,8 +115,8 @@ class HoldFirst:
     of that tilt, so a plan pulled toward the target pushes with the first tip to arrive.
     While fewer than ``grip`` contacts with moving bodies lie within
     :data:`HOLDING_DISTANCE` of the object (:meth:`observe`, at the start of each plan), the
-    cost's final pose term aims at the object's pose at the plan's start instead of the
-    target, so the tips close on it first and move it held between them.
+    cost's terms toward the target (the final pose, the tilt) aim at the object's pose at the
+    plan's start instead, so the tips close on it first and move it held between them.
 
     ``held`` (a 0-d tensor, 1 or 0) is an input of a compiled plan, and the repr names the
     setting only, so one graph serves every object.
