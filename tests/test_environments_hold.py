@@ -105,7 +105,7 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     assert isinstance(cost, ManipulationCost) and cost.hold.grip == 3
     assert env.cost(wide, hold_first=3).hold is None  # it slides: a lone push is safe
     assert env.cost(tall, hold_first=0).hold is None
-    assert env.cost(tall).hold is None if env.hold_first == 0 else env.cost(tall).hold.grip
+    assert env.cost(tall).hold.grip == env.hold_first == 2  # the TriFinger's default
     # the repr keys the compiled graphs: one graph for every held object
     assert repr(cost.hold) == repr(env.cost(HandEnv("trifinger", "binoculars"), hold_first=3).hold)
     for value in (-1, 1.5, True):
