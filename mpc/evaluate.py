@@ -146,6 +146,14 @@ def build_parser() -> argparse.ArgumentParser:
         "the environment's",
     )
     parser.add_argument(
+        "--hold-upright",
+        type=float,
+        default=None,
+        help="(hands, with a hold) the lean, as a fraction of the object's critical tilt, past "
+        "which the plan stops moving a held object and rights it (0: off); default the "
+        "environment's",
+    )
+    parser.add_argument(
         "--support-pass",
         choices=("on", "off"),
         default=None,
@@ -276,6 +284,7 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         "--contact-spread": args.contact_spread is not None,
         "--balance": args.balance is not None,
         "--hold-first": args.hold_first is not None,
+        "--hold-upright": args.hold_upright is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
@@ -286,6 +295,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--balance must be a weight >= 0, got {args.balance}")
     if args.hold_first is not None and args.hold_first < 0:
         parser.error(f"--hold-first must be a number of contacts >= 0, got {args.hold_first}")
+    if args.hold_upright is not None and not 0 <= args.hold_upright < math.inf:
+        parser.error(f"--hold-upright must be a number >= 0, got {args.hold_upright}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -321,6 +332,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.contact_spread,
             args.balance,
             args.hold_first,
+            args.hold_upright,
         )
         if args.support or any(term is not None for term in terms[1:]):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
@@ -483,6 +495,8 @@ def main(argv: list[str] | None = None) -> int:
     balance = f", balance term {configs[0].balance:g}" if configs[0].balance else ""
     hold = configs[0].hold_first
     hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
+    if configs[0].hold_first and configs[0].hold_upright:
+        hold += f" and righted past {configs[0].hold_upright:g} of their critical tilt"
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
         f"{args.settings.label}{planner}{balance}{hold}"

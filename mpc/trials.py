@@ -87,6 +87,7 @@ LEGACY_DEFAULTS = {
     "support_pass": False,
     "balance": 0.0,
     "hold_first": 0,
+    "hold_upright": 0.0,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -185,6 +186,9 @@ class TrialConfig:
         hold_first: the contacts that must hold an object that tips before it slides before
             the plan moves it (:class:`~torchcontact.environments.costs.HoldFirst`; 0: none);
             :func:`trial_configs` gives the environment's unless told.
+        hold_upright: with ``hold_first``, the lean, as a fraction of the object's critical
+            tilt, past which the plan rights a held object before it moves it on (0: none);
+            :func:`trial_configs` gives the environment's unless told.
     """
 
     env: str
@@ -218,6 +222,7 @@ class TrialConfig:
     support_pass: bool = False
     balance: float = 0.0
     hold_first: int = 0
+    hold_upright: float = 0.0
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -345,6 +350,9 @@ def trial_configs(
         options["balance"] = description.balance if options.get("cost") is None else 0.0
     if options.get("hold_first") is None:
         options["hold_first"] = description.hold_first if options.get("cost") is None else 0
+    if options.get("hold_upright") is None:
+        upright = description.hold_upright if options["hold_first"] else 0.0
+        options["hold_upright"] = upright if options.get("cost") is None else 0.0
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -417,9 +425,12 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             spread=config.contact_spread,
             balance=config.balance,
             hold_first=config.hold_first,
+            hold_upright=config.hold_upright,
         )
-    elif config.balance or config.hold_first:
-        term = "balance" if config.balance else "hold_first"
+    elif config.balance or config.hold_first or config.hold_upright:
+        term = next(
+            name for name in ("balance", "hold_first", "hold_upright") if getattr(config, name)
+        )
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True

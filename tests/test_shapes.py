@@ -34,6 +34,23 @@ def test_tipping_ratio_is_pose_height_over_the_base_edge_distance(tmp_path):
     assert standing_on_its_tip.tipping_ratio() == math.inf
 
 
+def test_critical_tilt_is_where_the_centre_of_mass_passes_the_base_edge(tmp_path):
+    step = math.radians(0.25) + 1e-9  # the grid's, and rounding at an exact tie
+    cube = make_object("cube").critical_tilt()
+    assert math.radians(45) <= cube <= math.radians(45) + step
+    tall = make_object("cube", size=(0.02, 0.04, 0.1))  # nearest edge 1 cm, centre 5 cm up
+    assert math.atan(0.2) <= tall.critical_tilt() <= math.atan(0.2) + step
+    flat = make_object("cube", size=(0.1, 0.1, 0.02))  # 5 cm to an edge, centre 1 cm up
+    assert math.atan(5.0) <= flat.critical_tilt() <= math.atan(5.0) + step
+    # a ball on its round bottom rolls at once
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    ball.export(tmp_path / "ball.stl")
+    assert load_object(tmp_path / "ball.stl", 0.06).critical_tilt() < math.radians(15)
+    for bad in ({"directions": 0}, {"directions": 2.0}, {"step": 0.0}, {"step": math.nan}):
+        with pytest.raises(ValueError, match="directions must be|step must be"):
+            make_object("cube").critical_tilt(**bad)
+
+
 def test_cube_mass_properties_are_exact():
     obj = make_object("cube", mass=0.02)
     np.testing.assert_allclose(obj.inertia, 0.02 * 0.06**2 / 6 * np.eye(3), rtol=1e-6, atol=1e-14)

@@ -159,6 +159,32 @@ class ObjectMesh:
         r = float(self.edge_distances(hull).min())
         return self.resting_height() / r if r > 0 else math.inf
 
+    def critical_tilt(self, directions: int = 16, step: float = math.radians(0.25)) -> float:
+        """[rad] The least tilt from upright, over ``directions`` evenly spaced horizontal
+        directions, at which the centre of mass passes over the point the object pivots on:
+        past it, gravity tips the object over. Found on a grid of ``step`` [rad] up to π/2
+        (π/2 where the object does not tip by then), so round bottoms count as well as bases."""
+        if isinstance(directions, bool) or not isinstance(directions, int) or directions < 1:
+            raise ValueError(f"directions must be a whole number >= 1, got {directions!r}")
+        if not (math.isfinite(step) and 0 < step <= math.pi / 2):
+            raise ValueError(f"step must be in (0, pi/2] rad, got {step!r}")
+        tilts = np.arange(1, int(math.pi / 2 / step) + 1) * step  # (A,)
+        cos, sin = np.cos(tilts)[:, None], np.sin(tilts)[:, None]
+        centre = self.centre_of_mass
+        least = math.pi / 2
+        for k in range(directions):
+            angle = 2 * math.pi * k / directions
+            u = np.array([math.cos(angle), math.sin(angle)])
+            # in the vertical plane along u: tilted by θ toward u, s' = s cosθ + z sinθ
+            s, z = self.vertices[:, :2] @ u, self.vertices[:, 2]
+            heights = -s[None] * sin + z[None] * cos  # (A, V)
+            lowest = heights <= heights.min(1, keepdims=True) + 1e-9
+            pivot = np.where(lowest, s[None] * cos + z[None] * sin, -np.inf).max(1)
+            over = (centre[:2] @ u) * cos[:, 0] + centre[2] * sin[:, 0] >= pivot
+            if over.any():
+                least = min(least, float(tilts[over.argmax()]))
+        return least
+
 
 def object_names() -> tuple[str, ...]:
     """Names of the built-in objects, in the order of :data:`OBJECT_SIZES`."""

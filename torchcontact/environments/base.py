@@ -97,6 +97,9 @@ class Environment:
         hold_first: how many fingertip contacts must hold an object that tips before it
             slides before its MPC moves it (:class:`~torchcontact.environments.costs
             .HoldFirst`); 0 where it moves it at once.
+        hold_upright: with a hold, the lean (as a fraction of the object's critical tilt,
+            :meth:`~torchcontact.shapes.ObjectMesh.critical_tilt`) past which its MPC stops
+            moving the object and rights it; 0 where it moves a held object however it leans.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -112,6 +115,7 @@ class Environment:
     support_pass: bool = False
     balance: float = 0.0
     hold_first: int = 0
+    hold_upright: float = 0.0
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -150,6 +154,7 @@ class Environment:
         spread: float | None = None,
         balance: float | None = None,
         hold_first: int | None = None,
+        hold_upright: float | None = None,
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
@@ -157,8 +162,9 @@ class Environment:
         on the ground refuse on); ``spread``: how far along a long object its contact term
         draws the tips; ``balance``: the weight of its term against pushes that tip the object
         over its base; ``hold_first``: the contacts that must hold an object that tips before
-        it slides before the plan moves it (both hands only; None: the environment's
-        default)."""
+        it slides before the plan moves it; ``hold_upright``: with it, the lean, as a fraction
+        of the object's critical tilt, past which the plan rights the object before it moves
+        it on (both hands only; None: the environment's default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

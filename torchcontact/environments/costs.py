@@ -118,15 +118,23 @@ class HoldFirst:
     cost's terms toward the target (the final pose, the tilt) aim at the object's pose at the
     plan's start instead, so the tips close on it first and move it held between them.
 
-    ``held`` (a 0-d tensor, 1 or 0) is an input of a compiled plan, and the repr names the
-    setting only, so one graph serves every object.
+    With a ``lean_limit`` [rad] (ours, off by default, measured in docs/experiments.md), a held
+    object whose up axis leans further than it from the target's is aimed at where it stands,
+    turned upright (:func:`righted`), until it leans less.
+
+    ``held`` (a 0-d tensor, 1 or 0) and the limit's cosine ``lean_cos`` are inputs of a
+    compiled plan, and the repr names the settings only, so one graph serves every object.
     """
 
-    def __init__(self, grip: int = 2):
+    def __init__(self, grip: int = 2, lean_limit: float | None = None):
         if isinstance(grip, bool) or not isinstance(grip, int) or grip < 1:
             raise ValueError(f"grip must be a whole number of contacts >= 1, got {grip!r}")
-        self.grip = grip
+        if lean_limit is not None and not (0 < lean_limit <= math.pi):
+            raise ValueError(f"lean_limit must be in (0, pi] rad or None, got {lean_limit!r}")
+        self.grip, self.lean_limit = grip, lean_limit
         self.held = torch.zeros((), dtype=torch.float64)
+        self.upright = lean_limit is not None
+        self.lean_cos = torch.tensor(math.cos(lean_limit or math.pi), dtype=torch.float64)
 
     def observe(self, contacts) -> None:
         """Set :attr:`held` from ``contacts``: 1 when at least :attr:`grip` contacts with
@@ -140,14 +148,38 @@ class HoldFirst:
         target_position: torch.Tensor,
         target_quat: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The pose ``(..., 3), (..., 4)`` the plan aims at: the target when held, else the
-        start ``positions[..., 0, :]``, ``quats[..., 0, :]`` of the rollout."""
-        held = self.held.to(positions)
-        position = held * target_position + (1 - held) * positions[..., 0, :]
-        return position, held * target_quat + (1 - held) * quats[..., 0, :]
+        """The pose ``(..., 3), (..., 4)`` the plan aims at: the target when held (and, with a
+        :attr:`lean_limit`, leaning less than it from the target's up axis), else the start
+        ``positions[..., 0, :]`` of the rollout, in the start's orientation ``quats[..., 0,
+        :]``, or with a lean limit that orientation turned upright (:func:`righted`)."""
+        start = quats[..., 0, :]
+        go = self.held.to(positions)
+        stay = start
+        if self.upright:
+            lean_cos = (up_axis(start) * up_axis(target_quat)).sum(-1, keepdim=True)
+            go = go * (lean_cos >= self.lean_cos.to(positions)).to(positions)
+            stay = righted(start, target_quat)
+        position = go * target_position + (1 - go) * positions[..., 0, :]
+        return position, go * target_quat + (1 - go) * stay
 
     def __repr__(self) -> str:
-        return f"HoldFirst(grip={self.grip!r}, distance={HOLDING_DISTANCE!r})"
+        return (
+            f"HoldFirst(grip={self.grip!r}, distance={HOLDING_DISTANCE!r}, "
+            f"upright={self.upright!r})"
+        )
+
+
+def righted(quat: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``quat (..., 4)`` turned by the least rotation that brings its z axis onto
+    ``target (..., 4)``'s: its lean taken out, its turn about that axis kept. The half-way
+    quaternion ``(1 + u·u*, u × u*)``, normalized, is that rotation; upside down (u = −u*)
+    it has no axis, and the quaternion stays as it is."""
+    u, goal = torch.broadcast_tensors(up_axis(quat), up_axis(target))
+    half = torch.cat([1 + (u * goal).sum(-1, keepdim=True), torch.linalg.cross(u, goal)], -1)
+    norm = half.square().sum(-1, keepdim=True).sqrt()
+    identity = half.new_tensor([1.0, 0.0, 0.0, 0.0]).expand_as(half)
+    half = torch.where(norm > 1e-9, half / norm.clamp_min(1e-9), identity)
+    return quaternion_multiply(half, quat.expand_as(half))
 
 
 class Balance:

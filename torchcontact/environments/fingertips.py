@@ -89,6 +89,7 @@ class FingertipsEnvironment(Environment):
         spread: float | None = None,
         balance: float | None = None,
         hold_first: int | None = None,
+        hold_upright: float | None = None,
     ) -> ManipulationCost:
         if support or margin is not None:
             raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
@@ -96,8 +97,9 @@ class FingertipsEnvironment(Environment):
             raise ValueError("spread: the fingertips keep the paper's contact term")
         if balance:
             raise ValueError("balance: the fingertips keep the paper's cost, with no balance term")
-        if hold_first:
-            raise ValueError("hold_first: the fingertips keep the paper's cost, with no hold")
+        if hold_first or hold_upright:
+            term = "hold_first" if hold_first else "hold_upright"
+            raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):

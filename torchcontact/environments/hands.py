@@ -95,6 +95,10 @@ class HandModel:
         hold_first: for objects that tip before they slide (:func:`tips_before_sliding`),
             how many fingertip contacts must hold the object before the plan moves it toward
             its target (:class:`~.costs.HoldFirst`); 0: it moves it from the first touch.
+        hold_upright: with :attr:`hold_first`, the lean from upright, as a fraction of the
+            object's critical tilt (:meth:`~torchcontact.shapes.ObjectMesh.critical_tilt`),
+            past which the plan stops moving a held object toward its target and rights it
+            (:attr:`~.costs.HoldFirst.lean_limit`); 0: it moves it however it leans.
     """
 
     robot_stiffness: float
@@ -113,6 +117,7 @@ class HandModel:
     balance: float = 0.0
     balance_threshold: float = 0.5
     hold_first: int = 0
+    hold_upright: float = 0.0
 
 
 def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
@@ -164,6 +169,7 @@ class HandEnvironment(Environment):
         self.support_pass = model.support_pass
         self.balance = model.balance
         self.hold_first = model.hold_first
+        self.hold_upright = model.hold_upright
         self.presets = presets
 
     @functools.cached_property
@@ -197,6 +203,7 @@ class HandEnvironment(Environment):
         spread: float | None = None,
         balance: float | None = None,
         hold_first: int | None = None,
+        hold_upright: float | None = None,
     ) -> Cost:
         """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
         where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
@@ -205,15 +212,25 @@ class HandEnvironment(Environment):
         :attr:`HandModel.contact_spread`; ``balance``: the balance term's weight, instead of
         :attr:`HandModel.balance` (0: off); ``hold_first``: the contacts that must hold an
         object that tips before it slides before the plan moves it, instead of
-        :attr:`HandModel.hold_first` (0: none)."""
+        :attr:`HandModel.hold_first` (0: none); ``hold_upright``: the lean, as a fraction of
+        the object's critical tilt, past which a held object is righted before it moves on,
+        instead of :attr:`HandModel.hold_upright` (0: none; a value needs a hold)."""
         cost = self.model.cost
         hold_first = self.model.hold_first if hold_first is None else hold_first
         if isinstance(hold_first, bool) or not isinstance(hold_first, int) or hold_first < 0:
             raise ValueError(f"hold_first must be a whole number >= 0, got {hold_first!r}")
         if hold_first and not isinstance(cost, ManipulationCost):
             raise ValueError(f"hold_first: {type(cost).__name__} has no target to hold back")
+        if hold_upright and not hold_first:
+            raise ValueError("hold_upright: it rights objects the hold holds; set hold_first")
+        hold_upright = self.model.hold_upright if hold_upright is None else hold_upright
+        if not (math.isfinite(hold_upright) and hold_upright >= 0):
+            raise ValueError(f"hold_upright must be a non-negative number, got {hold_upright!r}")
         if hold_first and tips_before_sliding(plant.object):
-            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first))
+            lean = None
+            if hold_upright:
+                lean = min(hold_upright * plant.object.critical_tilt(), math.pi)
+            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, lean))
         balance = self.model.balance if balance is None else balance
         if not (math.isfinite(balance) and balance >= 0):
             raise ValueError(f"balance must be a non-negative number, got {balance!r}")
