@@ -170,13 +170,14 @@ class ObjectMesh:
             raise ValueError(f"step must be in (0, pi/2] rad, got {step!r}")
         tilts = np.arange(1, int(math.pi / 2 / step) + 1) * step  # (A,)
         cos, sin = np.cos(tilts)[:, None], np.sin(tilts)[:, None]
-        centre = self.centre_of_mass
+        centre, vertices = self.centre_of_mass, self.vertices
+        z = vertices[:, 2]
         least = math.pi / 2
         for k in range(directions):
             angle = 2 * math.pi * k / directions
             u = np.array([math.cos(angle), math.sin(angle)])
             # in the vertical plane along u: tilted by θ toward u, s' = s cosθ + z sinθ
-            s, z = self.vertices[:, :2] @ u, self.vertices[:, 2]
+            s = vertices[:, :2] @ u
             heights = -s[None] * sin + z[None] * cos  # (A, V)
             lowest = heights <= heights.min(1, keepdims=True) + 1e-9
             pivot = np.where(lowest, s[None] * cos + z[None] * sin, -np.inf).max(1)

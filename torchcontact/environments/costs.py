@@ -133,8 +133,12 @@ class HoldFirst:
             raise ValueError(f"lean_limit must be in (0, pi] rad or None, got {lean_limit!r}")
         self.grip, self.lean_limit = grip, lean_limit
         self.held = torch.zeros((), dtype=torch.float64)
-        self.upright = lean_limit is not None
         self.lean_cos = torch.tensor(math.cos(lean_limit or math.pi), dtype=torch.float64)
+
+    @property
+    def upright(self) -> bool:
+        """Whether a held object is righted past :attr:`lean_limit`."""
+        return self.lean_limit is not None
 
     def observe(self, contacts) -> None:
         """Set :attr:`held` from ``contacts``: 1 when at least :attr:`grip` contacts with
