@@ -154,6 +154,14 @@ def build_parser() -> argparse.ArgumentParser:
         "environment's",
     )
     parser.add_argument(
+        "--hold-approach",
+        type=float,
+        default=None,
+        help="(hands, with a hold) the weight of the cost's contact term, relative to its "
+        "own, until the object is held: it draws the tips to the object (1: the paper's "
+        "throughout); default the environment's",
+    )
+    parser.add_argument(
         "--support-pass",
         choices=("on", "off"),
         default=None,
@@ -285,6 +293,7 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         "--balance": args.balance is not None,
         "--hold-first": args.hold_first is not None,
         "--hold-upright": args.hold_upright is not None,
+        "--hold-approach": args.hold_approach is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
@@ -297,6 +306,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--hold-first must be a number of contacts >= 0, got {args.hold_first}")
     if args.hold_upright is not None and not 0 <= args.hold_upright < math.inf:
         parser.error(f"--hold-upright must be a number >= 0, got {args.hold_upright}")
+    if args.hold_approach is not None and not 0 < args.hold_approach < math.inf:
+        parser.error(f"--hold-approach must be a weight > 0, got {args.hold_approach}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -333,6 +344,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.balance,
             args.hold_first,
             args.hold_upright,
+            args.hold_approach,
         )
         if args.support or any(term is not None for term in terms[1:]):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
@@ -497,6 +509,8 @@ def main(argv: list[str] | None = None) -> int:
     hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
     if configs[0].hold_first and configs[0].hold_upright:
         hold += f" and righted past {configs[0].hold_upright:g} of their critical tilt"
+    if configs[0].hold_first and configs[0].hold_approach != 1:
+        hold += f", approached at {configs[0].hold_approach:g}× the contact term"
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
         f"{args.settings.label}{planner}{balance}{hold}"

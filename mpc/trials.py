@@ -88,6 +88,7 @@ LEGACY_DEFAULTS = {
     "balance": 0.0,
     "hold_first": 0,
     "hold_upright": 0.0,
+    "hold_approach": 1.0,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -189,6 +190,9 @@ class TrialConfig:
         hold_upright: with ``hold_first``, the lean, as a fraction of the object's critical
             tilt, past which the plan rights a held object before it moves it on (0: none);
             :func:`trial_configs` gives the environment's unless told.
+        hold_approach: with ``hold_first``, the weight of the cost's contact term until the
+            object is held (1: the paper's throughout); :func:`trial_configs` gives the
+            environment's unless told.
     """
 
     env: str
@@ -223,6 +227,7 @@ class TrialConfig:
     balance: float = 0.0
     hold_first: int = 0
     hold_upright: float = 0.0
+    hold_approach: float = 1.0
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -353,6 +358,9 @@ def trial_configs(
     if options.get("hold_upright") is None:
         upright = description.hold_upright if options["hold_first"] else 0.0
         options["hold_upright"] = upright if options.get("cost") is None else 0.0
+    if options.get("hold_approach") is None:
+        approach = description.hold_approach if options["hold_first"] else 1.0
+        options["hold_approach"] = approach if options.get("cost") is None else 1.0
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -426,11 +434,11 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             balance=config.balance,
             hold_first=config.hold_first,
             hold_upright=config.hold_upright,
+            hold_approach=config.hold_approach,
         )
-    elif config.balance or config.hold_first or config.hold_upright:
-        term = next(
-            name for name in ("balance", "hold_first", "hold_upright") if getattr(config, name)
-        )
+    elif config.balance or config.hold_first or config.hold_upright or config.hold_approach != 1:
+        asked = ("balance", "hold_first", "hold_upright")
+        term = next((name for name in asked if getattr(config, name)), "hold_approach")
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True

@@ -100,6 +100,40 @@ def test_until_held_the_plan_aims_where_the_object_stands(dtype):
         torch.testing.assert_close(cost(holding, positions), cost(plain, positions))
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_until_held_the_approach_weighs_the_contact_term(dtype):
+    """Unheld, the contact term is ``approach`` times the paper's and every other term is the
+    hold's; held, the cost is the hold's, whatever the approach."""
+    batch, horizon = (3,), 4
+    tips = torch.linspace(-0.04, 0.05, 3 * (horizon + 1) * 3 * 3, dtype=dtype)
+    tips = tips.reshape(3, horizon + 1, 3, 3)
+    positions = torch.linspace(0, 0.02, 3 * (horizon + 1) * 3, dtype=dtype)
+    positions = positions.reshape(*batch, horizon + 1, 3)
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype).expand(*batch, horizon + 1, 4)
+    controls = torch.full((*batch, horizon, 9), 0.003, dtype=dtype)
+    target_p = torch.tensor([0.05, -0.02, 0.03], dtype=dtype)
+    target_q = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=dtype)
+
+    def cost(hold, contact=1.0):
+        c = ManipulationCost(contact=contact, hold=hold)
+        return c(positions, quats, tips, controls, target_p, target_q)
+
+    plain, drawn = HoldFirst(grip=2), HoldFirst(grip=2, approach=4.0)
+    for hold in (plain, drawn):
+        hold.observe(held_by(NEAR))
+    weighed = cost(drawn)
+    assert weighed.shape == batch and weighed.dtype == dtype
+    torch.testing.assert_close(weighed, cost(plain, contact=4.0))
+    assert bool((weighed > cost(plain)).all())
+    for hold in (plain, drawn):
+        hold.observe(held_by(NEAR, NEAR))
+    torch.testing.assert_close(cost(drawn), cost(plain))
+    assert "approach=4.0" in repr(drawn) and "approach" not in repr(plain)
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="approach must be a positive finite weight"):
+            HoldFirst(2, approach=bad)
+
+
 def leaning(angle: float, yaw: float = 0.3, dtype=F64) -> torch.Tensor:
     """A quaternion turned ``yaw`` about the vertical, then leaned ``angle`` about world x."""
     turn = torch.tensor([math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)], dtype=dtype)
@@ -170,6 +204,9 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
         fingertips.cost(fingertips.make_plant("cube"), hold_first=2)
     with pytest.raises(ValueError, match="hold_upright: the fingertips keep the paper's cost"):
         fingertips.cost(fingertips.make_plant("cube"), hold_upright=1.0)
+    with pytest.raises(ValueError, match="hold_approach: the fingertips keep the paper's cost"):
+        fingertips.cost(fingertips.make_plant("cube"), hold_approach=4.0)
+    assert fingertips.cost(fingertips.make_plant("cube"), hold_approach=1.0).hold is None
 
 
 def test_the_hands_right_a_held_object_past_a_share_of_its_critical_tilt():
@@ -189,6 +226,18 @@ def test_the_hands_right_a_held_object_past_a_share_of_its_critical_tilt():
             env.cost(tall, hold_upright=value)
 
 
+def test_the_hands_weigh_the_approach_to_a_hold():
+    env, tall = environment("trifinger"), HandEnv("trifinger", "water_bottle")
+    hold = env.cost(tall, hold_first=2, hold_approach=3.0).hold
+    assert hold.approach == 3.0
+    assert env.cost(tall, hold_first=2).hold.approach == env.hold_approach
+    with pytest.raises(ValueError, match="hold_approach: it weighs the approach to a hold"):
+        env.cost(tall, hold_first=0, hold_approach=3.0)
+    for value in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="hold_approach must be a positive number"):
+            env.cost(tall, hold_approach=value)
+
+
 def test_a_trial_plans_with_its_hold():
     configs = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_first=2)
     assert configs[0].hold_first == 2
@@ -197,7 +246,8 @@ def test_a_trial_plans_with_its_hold():
     default = trial_configs("trifinger", [("in-hand", "cube")], [0])[0]
     assert default.hold_first == environment("trifinger").hold_first
     assert trial_configs("fingertips", [("rotation", "cube")], [0])[0].hold_first == 0
-    old = {k: v for k, v in vars(default).items() if k not in ("hold_first", "hold_upright")}
+    new_keys = ("hold_first", "hold_upright", "hold_approach")
+    old = {k: v for k, v in vars(default).items() if k not in new_keys}
     assert stored_config(old)["hold_first"] == LEGACY_DEFAULTS["hold_first"] == 0  # ran without
     assert stored_config(old)["hold_upright"] == LEGACY_DEFAULTS["hold_upright"] == 0.0
     assert default.hold_upright == environment("trifinger").hold_upright
@@ -205,6 +255,13 @@ def test_a_trial_plans_with_its_hold():
     assert build_trial(righting[0])[2].cost.hold.upright
     unheld = trial_configs("trifinger", [("in-hand", "cube")], [0], hold_first=0)[0]
     assert unheld.hold_upright == 0.0  # nothing to right without a hold
+    assert stored_config(old)["hold_approach"] == LEGACY_DEFAULTS["hold_approach"] == 1.0
+    assert default.hold_approach == environment("trifinger").hold_approach
+    assert unheld.hold_approach == 1.0  # no hold to approach
+    drawn = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_approach=3.0)
+    assert build_trial(drawn[0])[2].cost.hold.approach == 3.0
+    pushing = trial_configs("trifinger", [("in-hand", "cube")], [0], cost="pushing")[0]
+    assert pushing.hold_approach == 1.0
 
 
 def test_the_cli_refuses_a_meaningless_hold(capsys):
@@ -214,6 +271,9 @@ def test_the_cli_refuses_a_meaningless_hold(capsys):
         (["fingertips", "--hold-first", "2"], "hold_first: the fingertips keep the paper's"),
         (["trifinger", "--hold-upright", "-1"], "--hold-upright must be a number >= 0"),
         (["trifinger", "--hold-upright", "1", "--hold-first", "0"], "hold_upright: it rights"),
+        (["trifinger", "--hold-approach", "0"], "--hold-approach must be a weight > 0"),
+        (["trifinger", "--hold-approach", "2", "--hold-first", "0"], "hold_approach: it weighs"),
+        (["trifinger", "--hold-approach", "2", "--cost", "pushing"], "--hold-approach is a"),
     ):
         with pytest.raises(SystemExit):
             main(["run", *argv, "--trials", "1"])
@@ -237,3 +297,7 @@ def test_the_hold_runs_on_cuda():
     _, turn = upright.aims(positions, leaned, positions.new_ones(3), target)
     assert turn.device.type == "cuda" and torch.isfinite(turn).all()
     torch.testing.assert_close(up_axis(turn).cpu(), torch.tensor([0.0, 0.0, 1.0]))
+    drawn = HoldFirst(grip=2, approach=4.0)
+    drawn.observe(held_by(NEAR))
+    weight = drawn.contact_weight(positions)
+    assert weight.device.type == "cuda" and float(weight) == 4.0

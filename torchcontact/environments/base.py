@@ -100,6 +100,8 @@ class Environment:
         hold_upright: with a hold, the lean (as a fraction of the object's critical tilt,
             :meth:`~torchcontact.shapes.ObjectMesh.critical_tilt`) past which its MPC stops
             moving the object and rights it; 0 where it moves a held object however it leans.
+        hold_approach: with a hold, the weight of its cost's contact term while the object is
+            not yet held; 1 where it is the paper's throughout.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -116,6 +118,7 @@ class Environment:
     balance: float = 0.0
     hold_first: int = 0
     hold_upright: float = 0.0
+    hold_approach: float = 1.0
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -155,6 +158,7 @@ class Environment:
         balance: float | None = None,
         hold_first: int | None = None,
         hold_upright: float | None = None,
+        hold_approach: float | None = None,
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
@@ -164,7 +168,8 @@ class Environment:
         over its base; ``hold_first``: the contacts that must hold an object that tips before
         it slides before the plan moves it; ``hold_upright``: with it, the lean, as a fraction
         of the object's critical tilt, past which the plan rights the object before it moves
-        it on (both hands only; None: the environment's default)."""
+        it on; ``hold_approach``: with it, the contact term's weight until the object is held
+        (these three: both hands only; None: the environment's default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

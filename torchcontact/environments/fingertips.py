@@ -90,6 +90,7 @@ class FingertipsEnvironment(Environment):
         balance: float | None = None,
         hold_first: int | None = None,
         hold_upright: float | None = None,
+        hold_approach: float | None = None,
     ) -> ManipulationCost:
         if support or margin is not None:
             raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
@@ -97,8 +98,10 @@ class FingertipsEnvironment(Environment):
             raise ValueError("spread: the fingertips keep the paper's contact term")
         if balance:
             raise ValueError("balance: the fingertips keep the paper's cost, with no balance term")
-        if hold_first or hold_upright:
-            term = "hold_first" if hold_first else "hold_upright"
+        asked = {"hold_first": hold_first, "hold_upright": hold_upright,
+                 "hold_approach": hold_approach not in (None, 1)}  # fmt: skip
+        term = next((name for name, value in asked.items() if value), None)
+        if term:
             raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
         return ManipulationCost()
 

@@ -99,6 +99,8 @@ class HandModel:
             object's critical tilt (:meth:`~torchcontact.shapes.ObjectMesh.critical_tilt`),
             past which the plan stops moving a held object toward its target and rights it
             (:attr:`~.costs.HoldFirst.lean_limit`); 0: it moves it however it leans.
+        hold_approach: with :attr:`hold_first`, the contact term's weight while the object
+            is not yet held (:attr:`~.costs.HoldFirst.approach`); 1: the paper's throughout.
     """
 
     robot_stiffness: float
@@ -118,6 +120,7 @@ class HandModel:
     balance_threshold: float = 0.5
     hold_first: int = 0
     hold_upright: float = 0.0
+    hold_approach: float = 1.0
 
 
 def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
@@ -170,6 +173,7 @@ class HandEnvironment(Environment):
         self.balance = model.balance
         self.hold_first = model.hold_first
         self.hold_upright = model.hold_upright
+        self.hold_approach = model.hold_approach
         self.presets = presets
 
     @functools.cached_property
@@ -204,6 +208,7 @@ class HandEnvironment(Environment):
         balance: float | None = None,
         hold_first: int | None = None,
         hold_upright: float | None = None,
+        hold_approach: float | None = None,
     ) -> Cost:
         """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
         where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
@@ -214,7 +219,9 @@ class HandEnvironment(Environment):
         object that tips before it slides before the plan moves it, instead of
         :attr:`HandModel.hold_first` (0: none); ``hold_upright``: the lean, as a fraction of
         the object's critical tilt, past which a held object is righted before it moves on,
-        instead of :attr:`HandModel.hold_upright` (0: none; a value needs a hold)."""
+        instead of :attr:`HandModel.hold_upright` (0: none; a value needs a hold);
+        ``hold_approach``: the contact term's weight while the object is not yet held,
+        instead of :attr:`HandModel.hold_approach` (1: none; another value needs a hold)."""
         cost = self.model.cost
         hold_first = self.model.hold_first if hold_first is None else hold_first
         if isinstance(hold_first, bool) or not isinstance(hold_first, int) or hold_first < 0:
@@ -226,11 +233,16 @@ class HandEnvironment(Environment):
         hold_upright = self.model.hold_upright if hold_upright is None else hold_upright
         if not (math.isfinite(hold_upright) and hold_upright >= 0):
             raise ValueError(f"hold_upright must be a non-negative number, got {hold_upright!r}")
+        if hold_approach is not None and hold_approach != 1 and not hold_first:
+            raise ValueError("hold_approach: it weighs the approach to a hold; set hold_first")
+        approach = self.model.hold_approach if hold_approach is None else hold_approach
+        if not (math.isfinite(approach) and approach > 0):
+            raise ValueError(f"hold_approach must be a positive number, got {approach!r}")
         if hold_first and tips_before_sliding(plant.object):
             lean = None
             if hold_upright:
                 lean = min(hold_upright * plant.object.critical_tilt(), math.pi)
-            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, lean))
+            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, lean, approach))
         balance = self.model.balance if balance is None else balance
         if not (math.isfinite(balance) and balance >= 0):
             raise ValueError(f"balance must be a non-negative number, got {balance!r}")
@@ -314,6 +326,8 @@ TRIFINGER_ENV = HandEnvironment(
         contact_floor=True,
         # a lone push tips them: 173 → 187 and 187 → 188 of 200 tuning trials (docs/experiments.md)
         hold_first=2,
+        # unheld, only the contact term draws the tips in: 187 → 191 and 188 → 189 (same)
+        hold_approach=4.0,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,
