@@ -162,6 +162,21 @@ def build_parser() -> argparse.ArgumentParser:
         "throughout); default the environment's",
     )
     parser.add_argument(
+        "--pose-stage",
+        type=float,
+        default=None,
+        help="(hands) the weight of the cost's pose terms on each planned state before the "
+        "last, relative to theirs on the last, so the plan's first step moves the object "
+        "too (0: the last alone, the paper's); default the environment's",
+    )
+    parser.add_argument(
+        "--pose-stage-radius",
+        type=float,
+        default=None,
+        help="(hands) [m] with --pose-stage, how near the target the object's centre must "
+        "start a plan for the stage to apply (inf: every plan); default the environment's",
+    )
+    parser.add_argument(
         "--support-pass",
         choices=("on", "off"),
         default=None,
@@ -294,6 +309,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         "--hold-first": args.hold_first is not None,
         "--hold-upright": args.hold_upright is not None,
         "--hold-approach": args.hold_approach is not None,
+        "--pose-stage": args.pose_stage is not None,
+        "--pose-stage-radius": args.pose_stage_radius is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
@@ -308,6 +325,11 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--hold-upright must be a number >= 0, got {args.hold_upright}")
     if args.hold_approach is not None and not 0 < args.hold_approach < math.inf:
         parser.error(f"--hold-approach must be a weight > 0, got {args.hold_approach}")
+    if args.pose_stage is not None and not 0 <= args.pose_stage < math.inf:
+        parser.error(f"--pose-stage must be a weight >= 0, got {args.pose_stage}")
+    radius = args.pose_stage_radius
+    if radius is not None and not radius > 0:
+        parser.error(f"--pose-stage-radius must be a distance > 0 [m], got {radius}")
     if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
         parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
     if args.support == "off" and args.support_margin is not None:
@@ -345,6 +367,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             args.hold_first,
             args.hold_upright,
             args.hold_approach,
+            args.pose_stage,
+            args.pose_stage_radius,
         )
         if args.support or any(term is not None for term in terms[1:]):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
@@ -511,6 +535,10 @@ def main(argv: list[str] | None = None) -> int:
         hold += f" and righted past {configs[0].hold_upright:g} of their critical tilt"
     if configs[0].hold_first and configs[0].hold_approach != 1:
         hold += f", approached at {configs[0].hold_approach:g}× the contact term"
+    if configs[0].pose_stage:
+        hold += f", the pose charged on every planned state at {configs[0].pose_stage:g}×"
+        if configs[0].pose_stage_radius != math.inf:
+            hold += f" within {1000 * configs[0].pose_stage_radius:g} mm of the target"
     print(
         f"MPC through the {args.model} model ({_about(args)}{support}); solver "
         f"{args.settings.label}{planner}{balance}{hold}"

@@ -89,6 +89,8 @@ LEGACY_DEFAULTS = {
     "hold_first": 0,
     "hold_upright": 0.0,
     "hold_approach": 1.0,
+    "pose_stage": 0.0,
+    "pose_stage_radius": math.inf,
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -193,6 +195,12 @@ class TrialConfig:
         hold_approach: with ``hold_first``, the weight of the cost's contact term until the
             object is held (1: the paper's throughout); :func:`trial_configs` gives the
             environment's unless told.
+        pose_stage: the weight of the cost's pose terms on each planned state before the
+            last, relative to theirs on the last (0: the last alone, the paper's);
+            :func:`trial_configs` gives the environment's unless told.
+        pose_stage_radius: [m] with ``pose_stage``, how near the target the object's centre
+            must start a plan for the stage to apply (inf: every plan; a record stores it as
+            null); :func:`trial_configs` gives the environment's unless told.
     """
 
     env: str
@@ -228,6 +236,8 @@ class TrialConfig:
     hold_first: int = 0
     hold_upright: float = 0.0
     hold_approach: float = 1.0
+    pose_stage: float = 0.0
+    pose_stage_radius: float = math.inf
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -273,6 +283,8 @@ def stored_config(record: dict) -> dict:
         stored["model"] = LEGACY_MODELS.get(stored["model"], stored["model"])
     if isinstance(stored["tips"], list):
         stored["tips"] = tuple(stored["tips"])
+    if stored["pose_stage_radius"] is None:  # JSON has no inf: written as null
+        stored["pose_stage_radius"] = math.inf
     return stored
 
 
@@ -361,6 +373,11 @@ def trial_configs(
     if options.get("hold_approach") is None:
         approach = description.hold_approach if options["hold_first"] else 1.0
         options["hold_approach"] = approach if options.get("cost") is None else 1.0
+    if options.get("pose_stage") is None:
+        options["pose_stage"] = description.pose_stage if options.get("cost") is None else 0.0
+    if options.get("pose_stage_radius") is None:
+        radius = description.pose_stage_radius if options["pose_stage"] else math.inf
+        options["pose_stage_radius"] = radius if options.get("cost") is None else math.inf
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -435,10 +452,21 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             hold_first=config.hold_first,
             hold_upright=config.hold_upright,
             hold_approach=config.hold_approach,
+            pose_stage=config.pose_stage,
+            pose_stage_radius=config.pose_stage_radius,
         )
-    elif config.balance or config.hold_first or config.hold_upright or config.hold_approach != 1:
-        asked = ("balance", "hold_first", "hold_upright")
-        term = next((name for name in asked if getattr(config, name)), "hold_approach")
+    elif (
+        config.balance
+        or config.hold_first
+        or config.hold_upright
+        or config.hold_approach != 1
+        or config.pose_stage
+        or config.pose_stage_radius != math.inf
+    ):
+        asked = ("balance", "hold_first", "hold_upright", "pose_stage")
+        term = next((name for name in asked if getattr(config, name)), None)
+        if term is None:
+            term = "hold_approach" if config.hold_approach != 1 else "pose_stage_radius"
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env, plant, model, config.planner, config.settings, cost, background_compile=True

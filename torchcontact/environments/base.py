@@ -10,6 +10,7 @@ builds one for a user's robot the same way.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,6 +103,11 @@ class Environment:
             moving the object and rights it; 0 where it moves a held object however it leans.
         hold_approach: with a hold, the weight of its cost's contact term while the object is
             not yet held; 1 where it is the paper's throughout.
+        pose_stage: the weight of its cost's pose terms on each planned state before the
+            last, relative to theirs on the last; 0 where they charge the last alone (the
+            paper's).
+        pose_stage_radius: [m] how near the target the object's centre must start a plan
+            for the stage to apply; inf where every plan is staged.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -119,6 +125,8 @@ class Environment:
     hold_first: int = 0
     hold_upright: float = 0.0
     hold_approach: float = 1.0
+    pose_stage: float = 0.0
+    pose_stage_radius: float = math.inf
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -159,6 +167,8 @@ class Environment:
         hold_first: int | None = None,
         hold_upright: float | None = None,
         hold_approach: float | None = None,
+        pose_stage: float | None = None,
+        pose_stage_radius: float | None = None,
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
         ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
@@ -168,8 +178,11 @@ class Environment:
         over its base; ``hold_first``: the contacts that must hold an object that tips before
         it slides before the plan moves it; ``hold_upright``: with it, the lean, as a fraction
         of the object's critical tilt, past which the plan rights the object before it moves
-        it on; ``hold_approach``: with it, the contact term's weight until the object is held
-        (these three: both hands only; None: the environment's default)."""
+        it on; ``hold_approach``: with it, the contact term's weight until the object is held;
+        ``pose_stage``: the pose terms' weight on the planned states before the last, relative
+        to theirs on the last; ``pose_stage_radius``: [m] how near the target a plan must
+        start for the stage to apply (these five: both hands only; None: the environment's
+        default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -335,6 +335,14 @@ class ManipulationCost:
     ``contact_axis (3,)`` [m], in the body frame, turns the contact term into
     :func:`axis_contact_cost`: each tip is drawn toward its nearest point of the segment
     ``p ± R(q)·contact_axis`` instead of the centre p. None: the centre, the paper's.
+
+    ``stage`` (ours) charges the pose terms of V on the planned states q₁…q_{T−1} as well, at
+    ``stage`` times their weight on q_T. With V on q_T alone (0, the paper's), a plan may put
+    off its push to its later steps, which are planned again before they run: the first
+    step, the one applied, then moves the object little, and a receding horizon can stall
+    short of the target on it. ``stage_radius`` [m] confines this to plans that start with
+    the object's centre within it of the target's (inf: every plan): far from the target, a
+    push charged on every step hurries large moves, and objects tip in them.
     """
 
     contact: float = 1.0
@@ -353,6 +361,8 @@ class ManipulationCost:
     balance: Balance | None = None
     balance_weight: float = 1.0
     hold: HoldFirst | None = None
+    stage: float = 0.0
+    stage_radius: float = math.inf
 
     def __call__(
         self,
@@ -395,6 +405,14 @@ class ManipulationCost:
         final = self.position * position_cost(
             positions[..., -1, :], target_position
         ) + self.orientation * quaternion_error(quats[..., -1, :], target_quat)
+        if self.stage:
+            position, quat = positions[..., 1:-1, :], quats[..., 1:-1, :]
+            early = self.position * position_cost(
+                position, target_position.unsqueeze(-2)
+            ) + self.orientation * quaternion_error(quat, target_quat.unsqueeze(-2))
+            start = (positions[..., 0, :] - target_position).norm(dim=-1)
+            near = (start < self.stage_radius).to(early)  # q₀ is given: a gate, not a gradient
+            final = final + self.stage * near * early.sum(-1)
         total = path + self.final * final
         if self.tip_height is not None:
             bound = height_bound_cost(tips[..., 1:, :, :], *self.tip_height).sum(-1)

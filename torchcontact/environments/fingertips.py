@@ -3,6 +3,8 @@ ground (the paper's rotation, flip and in-air tasks)."""
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from torchcontact.environments import tasks
@@ -91,6 +93,8 @@ class FingertipsEnvironment(Environment):
         hold_first: int | None = None,
         hold_upright: float | None = None,
         hold_approach: float | None = None,
+        pose_stage: float | None = None,
+        pose_stage_radius: float | None = None,
     ) -> ManipulationCost:
         if support or margin is not None:
             raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
@@ -103,6 +107,8 @@ class FingertipsEnvironment(Environment):
         term = next((name for name, value in asked.items() if value), None)
         if term:
             raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
+        if pose_stage or pose_stage_radius not in (None, math.inf):
+            raise ValueError("pose_stage: the fingertips keep the paper's cost, V on q_T alone")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):

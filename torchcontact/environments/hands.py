@@ -101,6 +101,12 @@ class HandModel:
             (:attr:`~.costs.HoldFirst.lean_limit`); 0: it moves it however it leans.
         hold_approach: with :attr:`hold_first`, the contact term's weight while the object
             is not yet held (:attr:`~.costs.HoldFirst.approach`); 1: the paper's throughout.
+        pose_stage: the weight of the cost's pose terms on each planned state before the
+            last, relative to theirs on the last (:attr:`~.costs.ManipulationCost.stage`);
+            0: on the last alone, the paper's.
+        pose_stage_radius: [m] with :attr:`pose_stage`, how near the target the object's
+            centre must start a plan for the stage to apply
+            (:attr:`~.costs.ManipulationCost.stage_radius`); inf: every plan.
     """
 
     robot_stiffness: float
@@ -121,6 +127,8 @@ class HandModel:
     hold_first: int = 0
     hold_upright: float = 0.0
     hold_approach: float = 1.0
+    pose_stage: float = 0.0
+    pose_stage_radius: float = math.inf
 
 
 def long_half_axis(obj: ObjectMesh, spread: float) -> tuple[float, float, float] | None:
@@ -174,6 +182,8 @@ class HandEnvironment(Environment):
         self.hold_first = model.hold_first
         self.hold_upright = model.hold_upright
         self.hold_approach = model.hold_approach
+        self.pose_stage = model.pose_stage
+        self.pose_stage_radius = model.pose_stage_radius
         self.presets = presets
 
     @functools.cached_property
@@ -209,6 +219,8 @@ class HandEnvironment(Environment):
         hold_first: int | None = None,
         hold_upright: float | None = None,
         hold_approach: float | None = None,
+        pose_stage: float | None = None,
+        pose_stage_radius: float | None = None,
     ) -> Cost:
         """The cost of ``plant``'s MPC; ``support``: its support term on or off (None: on
         where the model has a :attr:`HandModel.support_margin`, or a ``margin`` is given; on
@@ -221,7 +233,11 @@ class HandEnvironment(Environment):
         the object's critical tilt, past which a held object is righted before it moves on,
         instead of :attr:`HandModel.hold_upright` (0: none; a value needs a hold);
         ``hold_approach``: the contact term's weight while the object is not yet held,
-        instead of :attr:`HandModel.hold_approach` (1: none; another value needs a hold)."""
+        instead of :attr:`HandModel.hold_approach` (1: none; another value needs a hold);
+        ``pose_stage``: the pose terms' weight on the planned states before the last,
+        relative to theirs on the last, instead of :attr:`HandModel.pose_stage` (0: none);
+        ``pose_stage_radius``: [m] how near the target a plan must start for the stage to
+        apply, instead of :attr:`HandModel.pose_stage_radius` (inf: every plan)."""
         cost = self.model.cost
         hold_first = self.model.hold_first if hold_first is None else hold_first
         if isinstance(hold_first, bool) or not isinstance(hold_first, int) or hold_first < 0:
@@ -243,6 +259,18 @@ class HandEnvironment(Environment):
             if hold_upright:
                 lean = min(hold_upright * plant.object.critical_tilt(), math.pi)
             cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, lean, approach))
+        stage = self.model.pose_stage if pose_stage is None else pose_stage
+        if not (math.isfinite(stage) and stage >= 0):
+            raise ValueError(f"pose_stage must be a non-negative number, got {stage!r}")
+        if stage and not isinstance(cost, ManipulationCost):
+            raise ValueError(f"pose_stage: {type(cost).__name__} has no pose terms to stage")
+        radius = self.model.pose_stage_radius if pose_stage_radius is None else pose_stage_radius
+        if not radius > 0:  # NaN included
+            raise ValueError(f"pose_stage_radius must be a distance > 0 [m], got {radius!r}")
+        if pose_stage_radius is not None and radius != math.inf and not stage:
+            raise ValueError("pose_stage_radius: it confines the pose stage; set pose_stage")
+        if stage:
+            cost = dataclasses.replace(cost, stage=stage, stage_radius=radius)
         balance = self.model.balance if balance is None else balance
         if not (math.isfinite(balance) and balance >= 0):
             raise ValueError(f"balance must be a non-negative number, got {balance!r}")
@@ -328,6 +356,10 @@ TRIFINGER_ENV = HandEnvironment(
         hold_first=2,
         # unheld, only the contact term draws the tips in: 187 → 191 and 188 → 189 (same)
         hold_approach=4.0,
+        # near the target, plans put off their push and stalled at ~2 cm; staged within twice
+        # the 2 cm tolerance: mean error 10.9 → 6.7 and 8.8 → 6.6 mm, success tied (same)
+        pose_stage=1.0,
+        pose_stage_radius=0.04,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,
