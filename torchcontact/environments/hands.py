@@ -356,10 +356,6 @@ TRIFINGER_ENV = HandEnvironment(
         hold_first=2,
         # unheld, only the contact term draws the tips in: 187 → 191 and 188 → 189 (same)
         hold_approach=4.0,
-        # near the target, plans put off their push and stalled at ~2 cm; staged within twice
-        # the 2 cm tolerance: mean error 10.9 → 6.7 and 8.8 → 6.6 mm, success tied (same)
-        pose_stage=1.0,
-        pose_stage_radius=0.04,
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,
