@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from torchcontact.cli import writable_file
+from torchcontact.environments.tasks import TIPPED_TILT
+from torchcontact.mpc.report import tilt_error_deg
 from torchcontact.mpc.trials import SET_ASIDE_STEM, read_record
 from torchcontact.results import write_json
 
@@ -80,6 +82,9 @@ class Comparison:
         won, lost: the trials ``(env, task, object, seed)`` B succeeded in and A failed, and
             the other way round.
         pos_err_mm, angle_err_deg: ``(a, b)`` mean final errors over the common trials.
+        tipped: ``(a, b)`` common trials whose object ended tipped over (a final
+            :func:`~torchcontact.environments.tasks.tilt_error` past
+            :data:`~torchcontact.environments.tasks.TIPPED_TILT`).
         only_a, only_b: trials one run holds and the other does not (left out).
     """
 
@@ -89,6 +94,7 @@ class Comparison:
     lost: list[TrialKey]
     pos_err_mm: tuple[float, float]
     angle_err_deg: tuple[float, float]
+    tipped: tuple[int, int]
     only_a: int
     only_b: int
 
@@ -104,9 +110,9 @@ class Comparison:
             f"{self.common} common trials (left out: {self.only_a} only in A, "
             f"{self.only_b} only in B)",
             f"A: {a} ({100 * a / self.common:.1f} %), {self.pos_err_mm[0]:.1f} mm, "
-            f"{self.angle_err_deg[0]:.1f}°",
+            f"{self.angle_err_deg[0]:.1f}°, tipped {self.tipped[0]}",
             f"B: {b} ({100 * b / self.common:.1f} %), {self.pos_err_mm[1]:.1f} mm, "
-            f"{self.angle_err_deg[1]:.1f}°",
+            f"{self.angle_err_deg[1]:.1f}°, tipped {self.tipped[1]}",
             f"B won {len(self.won)}, lost {len(self.lost)}: McNemar p = {self.p_value:.3g}",
         ]
         for label, keys in (("won", self.won), ("lost", self.lost)):
@@ -136,9 +142,15 @@ def compare_runs(a: str | Path, b: str | Path) -> Comparison:
         lost=lost,
         pos_err_mm=pair("pos_err_mm", lambda values: float(np.mean(values))),
         angle_err_deg=pair("angle_err_deg", lambda values: float(np.mean(values))),
+        tipped=tuple(_tipped([run[key] for key in common]) for run in runs),
         only_a=len(set(runs[0]) - set(runs[1])),
         only_b=len(set(runs[1]) - set(runs[0])),
     )
+
+
+def _tipped(records: list[dict]) -> int:
+    """How many of ``records`` (read by :func:`load_run`, so with their poses) ended tipped."""
+    return sum(tilt_error_deg(record) > TIPPED_TILT for record in records)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -503,7 +503,7 @@ def print_summary(summary: dict, pairs: list) -> None:
             )
     print(
         f"success {100 * summary['success_rate']:.1f}% of {summary['trials']}, "
-        f"falls {report.count(summary['falls'])} | "
+        f"falls {report.count(summary['falls'])}, tipped {report.count(summary['tipped'])} | "
         f"final position {summary['pos_err_mm_mean']:.1f} mm, "
         f"angle {summary['angle_err_deg_mean']:.1f}° (quat err {summary['quat_err_mean']:.4f}) | "
         f"MPC solve median {summary['solve_ms_median']:.1f} ms, p90 {summary['solve_ms_p90']:.1f}"

@@ -45,6 +45,7 @@ def summarize(records: list[dict]) -> dict:
         return float(np.mean([r[key] for r in rows])) if rows else float("nan")
 
     fallen = [fell(r) for r in records]
+    tipped = [tilt_error_deg(r) for r in records]
 
     return {
         "success_rate": len(success) / len(records),
@@ -63,6 +64,8 @@ def summarize(records: list[dict]) -> dict:
         "trials": len(records),
         # trials whose object left its support (see tasks.fell); None where a record cannot tell
         "falls": None if None in fallen else sum(fallen),
+        # trials whose object ended tipped over (see tasks.tilt_error); None likewise
+        "tipped": None if None in tipped else sum(t > tasks.TIPPED_TILT for t in tipped),
     }
 
 
@@ -74,6 +77,14 @@ def fell(record: dict) -> bool | None:
     if "initial_pose" in record and "final_pose" in record:
         return tasks.fell(record["initial_pose"], record["final_pose"])
     return None
+
+
+def tilt_error_deg(record: dict) -> float | None:
+    """The record's final :func:`~torchcontact.environments.tasks.tilt_error` [deg], from its
+    final and target poses (None when it has none)."""
+    if "final_pose" not in record or "target_pose" not in record:
+        return None
+    return float(tasks.tilt_error(record["final_pose"][3:], record["target_pose"][3:]))
 
 
 MAX_LABELLED_GROUPS = 24
@@ -195,5 +206,6 @@ def csv_row(record: dict) -> dict:
     keys = ("task", "object", "seed", "success", "steps", "pos_err_mm", "quat_err")
     row = {k: record[k] for k in (*keys, "angle_err_deg")}
     row["fell"] = fell(record)
+    row["tilt_err_deg"] = tilt_error_deg(record)
     row["solve_ms_median"] = float(np.median(_compiled_or_all([record])))
     return row

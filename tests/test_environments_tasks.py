@@ -277,3 +277,23 @@ def test_fell_counts_a_drop_beyond_the_threshold_only():
     assert not tasks.fell(start, start + [0.3, 0.3, 0.1, 0, 0, 0, 0])  # far, but not lower
     with pytest.raises(ValueError, match="final_pose"):
         tasks.fell(start, start[:3])
+
+
+def test_the_tilt_error_is_the_lean_no_turn_about_the_vertical_removes():
+    target = tasks.quat_from_yaw_pitch_roll(0.4)
+    turned = tasks.quat_from_yaw_pitch_roll(0.4 + math.radians(155))  # 155° short: no lean
+    on_side = tasks.quat_from_yaw_pitch_roll(1.0, 0.0, math.pi / 2)
+    upside_down = tasks.quat_from_yaw_pitch_roll(-2.0, math.pi, 0.0)
+    assert tasks.tilt_error(turned, target) == pytest.approx(0.0, abs=1e-6)
+    assert tasks.angle_error(turned, target) == pytest.approx(155.0, abs=1e-6)
+    assert tasks.tilt_error(on_side, target) == pytest.approx(90.0)
+    assert tasks.tilt_error(upside_down, target) == pytest.approx(180.0)
+    assert tasks.tilt_error(-on_side, 2.0 * target) == pytest.approx(90.0)  # sign and norm
+    # a tilted target: the lean is measured from the axis the target holds upright
+    leaning = tasks.quat_from_yaw_pitch_roll(0.0, 0.5, 0.0)
+    assert tasks.tilt_error(leaning, leaning) == pytest.approx(0.0, abs=1e-6)
+    assert tasks.tilt_error(target, leaning) == pytest.approx(math.degrees(0.5))
+    batch = tasks.tilt_error(np.stack([turned, on_side]), target)
+    assert batch.shape == (2,) and batch[1] == pytest.approx(90.0)
+    with pytest.raises(ValueError, match=r"quat and target_quat must be \(\.\.\., 4\)"):
+        tasks.tilt_error([1.0, 0.0, 0.0], target)

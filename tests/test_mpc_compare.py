@@ -63,6 +63,24 @@ def test_two_runs_are_compared_on_the_trials_both_hold(tmp_path, record):
     assert comparison.angle_err_deg == (5.0, 4.0)
     assert comparison.p_value == 1.0
     assert "B won 1, lost 1" in comparison.summary()
+    assert comparison.tipped == (0, 0) and "4.0°, tipped 0" in comparison.summary()
+
+
+def test_a_comparison_counts_the_objects_that_ended_tipped_over(tmp_path, record):
+    a = _write_run(tmp_path / "a", record, {s: (False, 10.0, 90.0) for s in range(2)})
+    b = _write_run(tmp_path / "b", record, {s: (False, 10.0, 90.0) for s in range(2)})
+    lying = [*record["target_pose"][:3], *_on_its_side(record["target_pose"][3:])]
+    trial = json.loads((b / "trials" / "trial_seed1.json").read_text())
+    write_json(b / "trials" / "trial_seed1.json", {**trial, "final_pose": lying})
+    comparison = compare_runs(a, b)
+    assert comparison.tipped == (0, 1) and "90.0°, tipped 1" in comparison.summary()
+
+
+def _on_its_side(quat) -> list[float]:
+    """``quat`` (w, x, y, z) turned 90° about the world's x axis."""
+    w, x, y, z = quat
+    c = s = np.sqrt(0.5)  # (c, s, 0, 0) ⊗ quat
+    return [c * w - s * x, c * x + s * w, c * y - s * z, c * z + s * y]
 
 
 def test_a_run_leaves_out_set_aside_records_and_refuses_what_it_cannot_pair(tmp_path, record):

@@ -35,8 +35,10 @@ def test_one_short_trial_writes_summary_table_and_plot(tmp_path, capsys):
     assert record["steps"] == 15 and len(record["solve_ms"]) == 15
     assert record["aim_pose"] == record["target_pose"]  # a rotation target rests already
     assert record["fell"] is False and summary["falls"] == 0  # the ground holds it
+    assert summary["tipped"] == 0  # the cube turns about the vertical
     printed = capsys.readouterr().out
     assert "rotation" in printed and "success 0.0% of 1" in printed
+    assert "falls 0, tipped 0 |" in printed
     assert "through the paper model" in printed
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc import trials
-from torchcontact.mpc.report import summarize
+from torchcontact.mpc.report import csv_row, summarize
 from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
     LEGACY_DEFAULTS,
@@ -310,6 +311,28 @@ def test_summary_counts_falls_and_reads_them_from_older_records():
     assert summarize([record(True), record(False), record(z_end=-0.17)])["falls"] == 2
     assert summarize([record(False), record(z_end=0.02)])["falls"] == 0
     assert summarize([record(True), record(poses=False)])["falls"] is None
+
+
+def test_summary_counts_the_objects_that_end_tipped_over():
+    """Tipped: the final tilt error past 45°, whatever the turn about the vertical."""
+    upright, turned = [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]  # the latter 180° about z
+    lying = [math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0]  # 90° about x
+
+    def record(final=upright, poses=True):
+        r = {"success": False, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
+             "steps": 1, "solve_ms": [1.0], "detect_ms": [1.0], "sim_ms": [1.0],
+             "iterations": [1]}  # fmt: skip
+        if poses:
+            r["target_pose"] = [0.0, 0.0, 0.03, *upright]
+            r["final_pose"] = [0.0, 0.0, 0.03, *final]
+        return r
+
+    assert summarize([record(), record(turned), record(lying)])["tipped"] == 1
+    assert summarize([record(turned)])["tipped"] == 0
+    assert summarize([record(lying), record(poses=False)])["tipped"] is None
+    assert csv_row({**record(lying), "task": "t", "object": "o", "seed": 0})[
+        "tilt_err_deg"
+    ] == pytest.approx(90.0)
 
 
 def test_solve_times_leave_out_the_steps_planned_while_compiling():

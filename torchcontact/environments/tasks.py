@@ -313,6 +313,35 @@ def fell(initial_pose, final_pose) -> bool:
     return bool(end[2] < start[2] - FALL_DROP)
 
 
+TIPPED_TILT = 45.0
+"""[deg] The :func:`tilt_error` past which an object counts as tipped over (or, where the
+target is tilted, as not stood the way the target stands)."""
+
+
+def tilt_error(quat, target_quat) -> np.ndarray:
+    """[deg] The angle between the object's body axis that stands upright at the target and
+    world up, for unit quaternions ``(..., 4)`` (w, x, y, z): the part of the orientation
+    error that no turn about the vertical removes (0 for an object turned about it alone,
+    90 for one lying on its side, 180 upside down).
+
+    With ``r = q ⊗ q*⁻¹`` the rotation from the target to ``q``, that axis points along
+    ``R(r)·ẑ``, whose vertical component is ``1 − 2(r_x² + r_y²)``.
+    """
+    q = np.asarray(quat, dtype=float)
+    t = np.asarray(target_quat, dtype=float)
+    if q.shape[-1:] != (4,) or t.shape[-1:] != (4,):
+        raise ValueError(
+            f"quat and target_quat must be (..., 4) quaternions, got {q.shape} and {t.shape}"
+        )
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    tw, tx, ty, tz = np.moveaxis(t, -1, 0)
+    # r = q ⊗ conj(t): only its x and y components are needed
+    rx = -qw * tx + qx * tw - qy * tz + qz * ty
+    ry = -qw * ty + qx * tz + qy * tw - qz * tx
+    up = 1.0 - 2.0 * (rx**2 + ry**2) / np.sum(q * q, -1) / np.sum(t * t, -1)
+    return np.degrees(np.arccos(np.clip(up, -1.0, 1.0)))
+
+
 # --- sampling ----------------------------------------------------------------------------
 
 
