@@ -22,8 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from torchcontact.cli import writable_file
-from torchcontact.environments.tasks import TIPPED_TILT
-from torchcontact.mpc.report import tilt_error_deg
+from torchcontact.mpc.report import tipped
 from torchcontact.mpc.trials import SET_ASIDE_STEM, read_record
 from torchcontact.results import write_json
 
@@ -82,9 +81,8 @@ class Comparison:
         won, lost: the trials ``(env, task, object, seed)`` B succeeded in and A failed, and
             the other way round.
         pos_err_mm, angle_err_deg: ``(a, b)`` mean final errors over the common trials.
-        tipped: ``(a, b)`` common trials whose object ended tipped over (a final
-            :func:`~torchcontact.environments.tasks.tilt_error` past
-            :data:`~torchcontact.environments.tasks.TIPPED_TILT`).
+        tipped: ``(a, b)`` common trials whose object ended tipped over
+            (:func:`~torchcontact.mpc.report.tipped`).
         only_a, only_b: trials one run holds and the other does not (left out).
     """
 
@@ -142,15 +140,11 @@ def compare_runs(a: str | Path, b: str | Path) -> Comparison:
         lost=lost,
         pos_err_mm=pair("pos_err_mm", lambda values: float(np.mean(values))),
         angle_err_deg=pair("angle_err_deg", lambda values: float(np.mean(values))),
-        tipped=tuple(_tipped([run[key] for key in common]) for run in runs),
+        # load_run reads only records with their poses, so every one can tell
+        tipped=tuple(sum(tipped(run[key]) for key in common) for run in runs),
         only_a=len(set(runs[0]) - set(runs[1])),
         only_b=len(set(runs[1]) - set(runs[0])),
     )
-
-
-def _tipped(records: list[dict]) -> int:
-    """How many of ``records`` (read by :func:`load_run`, so with their poses) ended tipped."""
-    return sum(tilt_error_deg(record) > TIPPED_TILT for record in records)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,7 +45,7 @@ def summarize(records: list[dict]) -> dict:
         return float(np.mean([r[key] for r in rows])) if rows else float("nan")
 
     fallen = [fell(r) for r in records]
-    tipped = [tilt_error_deg(r) for r in records]
+    toppled = [tipped(r) for r in records]
 
     return {
         "success_rate": len(success) / len(records),
@@ -65,7 +65,7 @@ def summarize(records: list[dict]) -> dict:
         # trials whose object left its support (see tasks.fell); None where a record cannot tell
         "falls": None if None in fallen else sum(fallen),
         # trials whose object ended tipped over (see tasks.tilt_error); None likewise
-        "tipped": None if None in tipped else sum(t > tasks.TIPPED_TILT for t in tipped),
+        "tipped": None if None in toppled else sum(toppled),
     }
 
 
@@ -85,6 +85,13 @@ def tilt_error_deg(record: dict) -> float | None:
     if "final_pose" not in record or "target_pose" not in record:
         return None
     return float(tasks.tilt_error(record["final_pose"][3:], record["target_pose"][3:]))
+
+
+def tipped(record: dict) -> bool | None:
+    """Whether the record's object ended tipped over: its :func:`tilt_error_deg` past
+    :data:`~torchcontact.environments.tasks.TIPPED_TILT` (None when it has no poses)."""
+    tilt = tilt_error_deg(record)
+    return None if tilt is None else tilt > tasks.TIPPED_TILT
 
 
 MAX_LABELLED_GROUPS = 24
