@@ -10,11 +10,13 @@ with ``--device cuda`` (as ``learn-k --device cuda``). Prints a table and writes
     python benchmarks/learn_fit_speed.py                       # 2000 x 50 = 100k transitions
     python benchmarks/learn_fit_speed.py --trajectories 40     # a quick check
     python benchmarks/learn_fit_speed.py --device cuda         # the same fit on a GPU
+    python benchmarks/learn_fit_speed.py --residual 64         # and an object residual after it
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -32,6 +34,7 @@ from torchcontact.checkpoint import (  # noqa: E402
 from torchcontact.learn.data import collect, load  # noqa: E402
 from torchcontact.learn.evaluate import one_step_error  # noqa: E402
 from torchcontact.learn.fit import StepData, fit_steps  # noqa: E402
+from torchcontact.learn.residual_fit import fit_residual  # noqa: E402
 from torchcontact.learn.scenes import SCENES  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 
@@ -52,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loss-horizon", type=int, default=1)
     parser.add_argument("--robot-weight", type=float, default=1.0)
     parser.add_argument("--calibrate", default="command_gain,robot_stiffness,object_metric")
+    parser.add_argument("--residual", type=int, default=0, help="object residual's hidden units")
     parser.add_argument("--workers", type=int, default=1, help="collection processes")
     parser.add_argument("--out", type=Path, default=Path("results/learn"))
     parser.add_argument("--device", default="cpu", help="where the fit runs: cpu or cuda")
@@ -90,9 +94,14 @@ def main(argv: list[str] | None = None) -> int:
         loss_horizon=args.loss_horizon,
         robot_weight=args.robot_weight,
         calibrate=tuple(filter(None, args.calibrate.split(","))),
+        residual=args.residual,
     )
     weights = tuple(meta["pose_weights"])
-    result = fit_steps(build_model(config, meta), steps[0], steps[1], weights, config)
+    model = build_model(dataclasses.replace(config, residual=0), meta)
+    result = fit_steps(model, steps[0], steps[1], weights, config)
+    residual_s = 0.0
+    if args.residual:  # the second stage, as learn-k --residual
+        residual_s = fit_residual(result.model, *steps[:2], meta["joints"], config).seconds
     paper_model = constant_model(meta["paper_stiffness"], meta).to(args.device)
     paper = one_step_error(paper_model, steps[2], weights)
     learned = one_step_error(result.model, steps[2], weights)
@@ -103,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_seconds": load_s,
         "windows_seconds": windows_s,
         "fit_seconds": result.seconds,
+        "residual_seconds": residual_s,
         "epochs": epochs,
         "seconds_per_epoch": result.seconds / epochs,
         "adam_steps": epochs * -(-len(train) // args.batch_size),
@@ -114,11 +124,11 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(
         f"{'transitions':>11s} {'train':>7s} {'load s':>7s} {'windows s':>12s} "
-        f"{'fit s':>7s} {'epochs':>6s} {'s/epoch':>7s}"
+        f"{'fit s':>7s} {'epochs':>6s} {'s/epoch':>7s} {'residual s':>10s}"
     )
     print(
         f"{len(transitions):>11d} {len(train):>7d} {load_s:>7.1f} {windows_s:>12.1f} "
-        f"{result.seconds:>7.1f} {epochs:>6d} {result.seconds / epochs:>7.2f}"
+        f"{result.seconds:>7.1f} {epochs:>6d} {result.seconds / epochs:>7.2f} {residual_s:>10.1f}"
     )
     print(
         f"one-step test error: paper K {paper['pos_mm']:.2f} mm {paper['angle_deg']:.2f}°, "

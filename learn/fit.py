@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 from torchcontact.checkpoint import FitConfig
 from torchcontact.contacts import Contacts
 from torchcontact.environments.costs import position_cost
-from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate
+from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate, object_indices
 from torchcontact.learn.data import Transitions, affine_system
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_error
@@ -41,20 +41,6 @@ def system_terms(meta: dict, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
     B = torch.tensor(system["B"], **kw)
     b = torch.tensor(system["b0"], **kw) + u @ B.T
     return torch.tensor(system["Q"], **kw), b
-
-
-def object_indices(joints: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Indices ``(n_obj, 7)`` in q and ``(n_obj, 6)`` in v of the free joints (the objects)."""
-    iq = iv = 0
-    q_index, v_index = [], []
-    for joint in JointLayout(joints).joints:
-        if joint == "free":
-            q_index.append(list(range(iq, iq + 7)))
-            v_index.append(list(range(iv, iv + 6)))
-        iq, iv = iq + JOINT_SIZES[joint][0], iv + JOINT_SIZES[joint][1]
-    if not q_index:
-        raise ValueError(f"joints must include a free joint (the object), got {joints}")
-    return torch.tensor(q_index), torch.tensor(v_index)
 
 
 @dataclass
@@ -268,16 +254,23 @@ def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, t
     """Object poses ``(N, H, n_obj, 7)`` and robot coordinates ``(N, H, n_r)`` after each
     step of ``data``'s windows under ``model``, contacts frozen at each window's first state."""
     Q, b = step_terms(model, data)
-    frozen = model.freeze(data.contacts, data.h, data.q)
+    frozen = model.freeze(data.contacts, data.h, data.q, without_residual=True)
+    residual = model.residual
     n_obj = data.pose.shape[-2]
     layout = JointLayout(["free"] * n_obj)
     pose, robot, poses, robots = data.pose.flatten(-2), data.robot, [], []
-    moved = data.displacement
+    moved, q = data.displacement, data.q
     for t in range(data.horizon):
-        v = frozen.velocity(*carried(model, Q[:, 0], b[:, t], moved, data.object_rows))
+        terms = carried(model, Q[:, 0], b[:, t], moved, data.object_rows)
+        v = frozen.velocity(*terms)
+        if residual is not None:  # the residual sees each step's state, the contacts stay
+            v = residual(q, terms[1], v, data.h)
         moved = data.h * v[:, data.object_rows]
         pose = integrate(pose, v[:, data.object_rows], data.h, layout)
         robot = robot + data.h * v[:, data.robot_rows]
+        if residual is not None:
+            q = q.index_copy(-1, residual.object_q.flatten(), pose)
+            q = q.index_copy(-1, residual.other_q, robot)
         poses.append(pose.unflatten(-1, (n_obj, 7)))
         robots.append(robot)
     return torch.stack(poses, dim=1), torch.stack(robots, dim=1)
@@ -369,35 +362,60 @@ def fit_steps(
     if not parameters:
         raise ValueError("model has no learnable parameters")
     model = model.to(device=train.q.device, dtype=train.q.dtype)
-    optimizer = torch.optim.Adam(parameters, lr=config.lr)
+    with validate_args(False):
+        return adam_with_early_stopping(
+            model,
+            torch.optim.Adam(parameters, lr=config.lr),
+            len(train),
+            lambda rows: window_loss(model, train.select(rows), weights, config.robot_weight),
+            lambda: _evaluate_loss(model, val, weights, config.robot_weight),
+            config,
+            progress,
+        )
+
+
+def adam_with_early_stopping(
+    module: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    count: int,
+    batch_loss,
+    val_loss,
+    config: FitConfig,
+    progress: bool = True,
+    batch_size: int | None = None,
+    desc: str = "fit",
+) -> FitResult:
+    """The training loop of every fit: per epoch, ``optimizer`` steps on ``batch_loss(rows)``
+    over ``count`` examples shuffled (seeded by ``config.seed``) in batches of ``batch_size``
+    (default ``config.batch_size``); stops after ``config.epochs``, or ``config.patience``
+    epochs without a lower ``val_loss()``, and leaves ``module`` in its best validation
+    state. The result's ``model`` is ``module``."""
+    batch_size = config.batch_size if batch_size is None else batch_size
     generator = torch.Generator().manual_seed(config.seed)
     start = time.perf_counter()
-    with validate_args(False):
-        best = _evaluate_loss(model, val, weights, config.robot_weight)
-        best_state, best_epoch, history = copy.deepcopy(model.state_dict()), 0, []
-        bar = tqdm(range(1, config.epochs + 1), desc="fit", disable=not progress, unit="epoch")
-        for epoch in bar:
-            order = torch.randperm(len(train), generator=generator)
-            running = 0.0
-            for first in range(0, len(train), config.batch_size):
-                batch = train.select(order[first : first + config.batch_size])
-                loss = window_loss(model, batch, weights, config.robot_weight)
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                optimizer.step()
-                running += loss.item() * len(batch)
-            val_loss = _evaluate_loss(model, val, weights, config.robot_weight)
-            history.append(
-                {"epoch": epoch, "train_loss": running / len(train), "val_loss": val_loss}
-            )
-            bar.set_postfix(train=f"{running / len(train):.3g}", val=f"{val_loss:.3g}")
-            if val_loss < best:
-                best, best_epoch = val_loss, epoch
-                best_state = copy.deepcopy(model.state_dict())
-            elif epoch - best_epoch >= config.patience:
-                break
-    model.load_state_dict(best_state)
-    return FitResult(model, history, best_epoch, best, time.perf_counter() - start)
+    best = val_loss()
+    best_state, best_epoch, history = copy.deepcopy(module.state_dict()), 0, []
+    bar = tqdm(range(1, config.epochs + 1), desc=desc, disable=not progress, unit="epoch")
+    for epoch in bar:
+        order = torch.randperm(count, generator=generator)
+        running = 0.0
+        for first in range(0, count, batch_size):
+            rows = order[first : first + batch_size]
+            loss = batch_loss(rows)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            running += loss.item() * len(rows)
+        current = val_loss()
+        history.append({"epoch": epoch, "train_loss": running / count, "val_loss": current})
+        bar.set_postfix(train=f"{running / count:.3g}", val=f"{current:.3g}")
+        if current < best:
+            best, best_epoch = current, epoch
+            best_state = copy.deepcopy(module.state_dict())
+        elif epoch - best_epoch >= config.patience:
+            break
+    module.load_state_dict(best_state)
+    return FitResult(module, history, best_epoch, best, time.perf_counter() - start)
 
 
 def fit(

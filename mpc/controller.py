@@ -237,9 +237,16 @@ class ContactImplicitMPC:
         """The model's step frozen at the contacts detected at ``q (nq,)``; its inner
         iterations compiled as ``compiled`` (default: as the MPC)."""
         compiled = self.compiled if compiled is None else compiled
+        options = {"without_residual": True} if self.residual is not None else {}
         if compiled and self._freeze is not None:
-            return self._freeze(contacts, self.h, q)
-        return self.model.freeze(contacts, self.h, q, compile=compiled)
+            return self._freeze(contacts, self.h, q, **options)
+        return self.model.freeze(contacts, self.h, q, compile=compiled, **options)
+
+    @property
+    def residual(self):
+        """The model's :class:`~torchcontact.residual.ObjectResidual`, which :meth:`rollout`
+        applies at each planned state, or None."""
+        return getattr(self.model, "residual", None)
 
     @property
     def carries_momentum(self) -> bool:
@@ -254,8 +261,8 @@ class ContactImplicitMPC:
         computed at once; propagated gaps chain the steps through φ̃, and a system carrying
         momentum through the object's displacement, ``moved (n_o,)`` [m, rad] before q0.
         """
-        if self.carries_momentum:
-            return self._momentum_rollout(q0, controls, frozen, moved)
+        if self.carries_momentum or self.residual is not None:
+            return self._chained_rollout(q0, controls, frozen, moved)
         Q, b = self.system(controls)
         states = [q0.expand(*controls.shape[:-2], -1)]
         if self.gaps == "propagated":
@@ -269,12 +276,17 @@ class ContactImplicitMPC:
             states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
         return torch.stack(states, dim=-2)
 
-    def _momentum_rollout(self, q0, controls, frozen, moved) -> torch.Tensor:
-        """:meth:`rollout` of a system carrying momentum: the steps chained through the
-        object's displacement (and φ̃ with propagated gaps)."""
+    def _chained_rollout(self, q0, controls, frozen, moved) -> torch.Tensor:
+        """:meth:`rollout` step by step, for a system carrying momentum (the steps chained
+        through the object's displacement) or a model with a residual (applied at each
+        planned state), and φ̃ with propagated gaps."""
         states = [q0.expand(*controls.shape[:-2], -1)]
         for t in range(self.horizon):
-            v = frozen.velocity(*self.system(controls[..., t, :], object_displacement=moved))
+            options = {"object_displacement": moved} if self.carries_momentum else {}
+            Q, b = self.system(controls[..., t, :], **options)
+            v = frozen.velocity(Q, b)
+            if self.residual is not None:
+                v = self.residual(states[-1], b, v, self.h)
             states.append(integrate(states[-1], v, self.h, self.layout))
             moved = self.h * v[..., self._object_rows]
             if self.gaps == "propagated":

@@ -215,3 +215,27 @@ def test_learn_k_fits_on_cuda(tmp_path):
     assert main(["learn-k", *options.split(), "--out", str(tmp_path)]) == 0
     model, _, _ = load_checkpoint(tmp_path / "trifinger_cube" / "model.pt")
     assert all(p.device.type == "cpu" for p in model.parameters())
+
+
+def test_residual_is_fitted_second_and_drives_the_mpc(tmp_path, capsys):
+    """``--residual H``: the model holds an object residual, evaluated beside the model
+    without it; ``run --learned`` plans with it."""
+    options = (
+        "--scene trifinger --object cube --trajectories 3 --steps 8 --actions random "
+        "--horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress "
+        "--splits 1 --residual 8"
+    )
+    assert main(["learn-k", *options.split(), "--out", str(tmp_path)]) == 0
+    record = read_json(tmp_path / "trifinger_cube" / "results.json")
+    assert math.isfinite(record["rollout10_err_learned_without_residual"])
+    assert "learned without residual" in capsys.readouterr().out
+    checkpoint = tmp_path / "trifinger_cube" / "model.pt"
+    model, config, _ = load_checkpoint(checkpoint)
+    assert config.residual == 8 and model.residual is not None
+    run = ["run", "trifinger", "--object", "cube", "--trials", "1", "--max-steps", "3"]
+    run += ["--learned", str(checkpoint), "--no-compile", "--no-progress"]
+    assert main([*run, "--out", str(tmp_path / "loop")]) == 0
+    trial = read_json(tmp_path / "loop" / "trials" / "trifinger_learned_in-hand_cube_seed0.json")
+    assert trial["steps"] == 3
+    planned = trial_model(TrialRecord.from_dict(trial).config, h=0.1)
+    assert planned.residual is not None

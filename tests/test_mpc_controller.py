@@ -16,12 +16,13 @@ from torchcontact.environments.costs import ManipulationCost
 from torchcontact.environments.fingertips import CONTROL_BOUND
 from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.functional import cf_velocity
-from torchcontact.integrate import difference, integrate
+from torchcontact.integrate import difference, integrate, object_indices
 from torchcontact.model import contact_model
 from torchcontact.mpc import background
 from torchcontact.mpc.controller import CONTACT_BUCKET, ContactImplicitMPC
 from torchcontact.mpc.planners import LBFGS
 from torchcontact.relaxed_qp import paper_relaxation
+from torchcontact.residual import ObjectResidual
 
 DT = torch.float64
 FINGERTIPS = environment("fingertips")
@@ -125,6 +126,38 @@ def test_a_momentum_rollout_chains_the_objects_displacement(env, gaps):
             step = step.advance_gaps(v)
     at_rest = mpc.rollout(q, controls, mpc.freeze(q, contacts))
     assert not torch.allclose(states[:, 1], at_rest[:, 1])
+
+
+@pytest.mark.parametrize("gaps", GAPS)
+def test_a_residual_is_applied_at_every_planned_state(env, gaps):
+    """A model with an object residual plans each step as the model's own forward at that
+    state, the contacts frozen; a plan through it keeps its box."""
+    model = ComplementarityFree(FINGERTIPS.default_stiffness).double()
+    model.residual = ObjectResidual(
+        *object_indices(FINGERTIPS.layout.joints), 16, 15, hidden=8
+    ).double()
+    with torch.no_grad():
+        for parameter in model.residual.parameters():
+            parameter.normal_(0.0, 0.3)
+    mpc = _mpc(env, model, max_iter=5, gaps=gaps)
+    q, contacts = _touching_state(env)
+    step = mpc.freeze(q, contacts)
+    controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
+    states = mpc.rollout(q, controls, step)
+    state = q.expand(2, -1)
+    for t in range(mpc.horizon):
+        Q, b = mpc.system(controls[:, t])
+        v = model(Q, b, contacts.to(DT), mpc.h, q=state) if t == 0 or gaps == "frozen" else None
+        if v is None:  # propagated gaps: the frozen step's advanced φ̃, then the residual
+            v = model.residual(state, b, step.velocity(Q, b), mpc.h)
+        state = integrate(state, v, mpc.h, mpc.layout)
+        torch.testing.assert_close(states[:, t + 1], state)
+        if gaps == "propagated":
+            step = step.advance_gaps(v)
+    without = mpc.rollout(q, controls, _mpc(env, max_iter=5, gaps=gaps).freeze(q, contacts))
+    assert not torch.allclose(states[:, 1], without[:, 1])
+    plan = mpc.plan(q, contacts, *TARGET)
+    assert bool((plan.controls.abs() <= CONTROL_BOUND + 1e-12).all())
 
 
 def test_the_mpc_plans_from_the_objects_last_displacement(env):

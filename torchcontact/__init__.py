@@ -19,6 +19,7 @@ from torchcontact.model import (
 from torchcontact.networks import ObjectContactNetwork
 from torchcontact.qp import qp_solve
 from torchcontact.relaxed_qp import relaxed_qp_velocity
+from torchcontact.residual import ObjectResidual
 from torchcontact.rotations import (
     quaternion_angle,
     quaternion_error,
@@ -54,6 +55,7 @@ __all__ = [
     "Contacts",
     "JointLayout",
     "ObjectContactNetwork",
+    "ObjectResidual",
     "Parameterization",
     "PerRow",
     "QuasiDynamic",

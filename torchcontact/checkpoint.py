@@ -18,8 +18,10 @@ from pathlib import Path
 import torch
 
 from torchcontact.calibration import OPTIONAL, PARTS, SystemCalibration
+from torchcontact.integrate import object_indices
 from torchcontact.model import ComplementarityFree
 from torchcontact.networks import ObjectContactNetwork
+from torchcontact.residual import ObjectResidual
 from torchcontact.results import atomic_write
 from torchcontact.stiffness import (
     Constant,
@@ -84,6 +86,7 @@ class FitConfig:
     calibrate: tuple[str, ...] = ()
     loss_horizon: int = 1
     robot_weight: float = 0.0
+    residual: int = 0
 
     def __post_init__(self) -> None:
         if self.stiffness not in STIFFNESS_KINDS:
@@ -104,6 +107,9 @@ class FitConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        residual = self.residual
+        if isinstance(residual, bool) or not isinstance(residual, int) or residual < 0:
+            raise ValueError(f"residual must be a non-negative integer, got {self.residual!r}")
         if not (math.isfinite(self.robot_weight) and self.robot_weight >= 0):
             raise ValueError(
                 f"robot_weight must be non-negative and finite, got {self.robot_weight!r}"
@@ -126,7 +132,8 @@ def _parameterization(kind: str, value: float, meta: dict, config: FitConfig) ->
 
 
 def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
-    """The scene's model (γ, facets of ``meta``) with the learnable K and D of ``config``."""
+    """The scene's model (γ, facets of ``meta``) with the learnable K and D of ``config``, and
+    its residual (unfitted: zero) when ``config.residual``."""
     torch.manual_seed(config.seed)
     value = config.initial_stiffness or meta["paper_stiffness"]
     stiffness = _parameterization(config.stiffness, value, meta, config)
@@ -139,8 +146,18 @@ def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
     else:
         damping = _parameterization(config.damping, 0.1 * value, meta, config)
     calibration = SystemCalibration(meta["nu"], config.calibrate) if config.calibrate else None
+    residual = None
+    if config.residual:
+        residual = ObjectResidual(
+            *object_indices(meta["joints"]), meta["nq"], meta["nv"], hidden=config.residual
+        )
     return ComplementarityFree(
-        stiffness, damping, gamma=meta["gamma"], facets=meta["facets"], calibration=calibration
+        stiffness,
+        damping,
+        gamma=meta["gamma"],
+        facets=meta["facets"],
+        calibration=calibration,
+        residual=residual,
     )
 
 

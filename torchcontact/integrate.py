@@ -135,6 +135,20 @@ class JointLayout:
         return f"JointLayout({list(self.joints)}, blocks={self.blocks})"
 
 
+def object_indices(joints: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Indices ``(n_obj, 7)`` in q and ``(n_obj, 6)`` in v of the free joints (the objects)."""
+    iq = iv = 0
+    q_index, v_index = [], []
+    for joint in JointLayout(joints).joints:
+        if joint == "free":
+            q_index.append(list(range(iq, iq + 7)))
+            v_index.append(list(range(iv, iv + 6)))
+        iq, iv = iq + JOINT_SIZES[joint][0], iv + JOINT_SIZES[joint][1]
+    if not q_index:
+        raise ValueError(f"joints must include a free joint (the object), got {joints}")
+    return torch.tensor(q_index), torch.tensor(v_index)
+
+
 def _check_blocks(blocks: Mapping[str, int] | None, n_joints: int) -> dict[str, int]:
     """``blocks`` as a dict, checked to split ``n_joints`` joints; None: one block ``"all"``."""
     if blocks is None:

@@ -30,6 +30,7 @@ from torchcontact.relaxed_qp import (
     _check_relaxation,
     relaxed_qp_velocity,
 )
+from torchcontact.residual import ObjectResidual
 from torchcontact.stiffness import Constant, Parameterization, Relative, parameterization
 from torchcontact.validation import check_finite, register
 
@@ -90,6 +91,10 @@ class ComplementarityFree(ContactModel):
             (``second_pass`` of :func:`~torchcontact.functional.cf_velocity`), so the
             support's friction answers a push; False: one pass, the paper's. An attribute:
             set it on a loaded model too.
+        residual: a fitted :class:`~torchcontact.residual.ObjectResidual` added to the
+            objects' velocity, or None. It needs ``q``. A frozen step cannot apply it (it
+            sees one state), so :meth:`freeze` refuses unless told that the caller applies it
+            at each state, as the MPC's rollout does.
 
     Call: ``model(Q, b, contacts, h, q=None)`` with ``Q (..., nv)`` or ``(..., nv, nv)``,
     ``b (..., nv)``, :class:`Contacts` of batch shape ``...``, ``h`` [s] and, for
@@ -104,6 +109,7 @@ class ComplementarityFree(ContactModel):
         facets: int = 4,
         calibration: SystemCalibration | None = None,
         support_pass: bool = False,
+        residual: ObjectResidual | None = None,
     ):
         super().__init__()
         if not isinstance(support_pass, bool):
@@ -125,6 +131,9 @@ class ComplementarityFree(ContactModel):
                 f"calibration must be a SystemCalibration or None, got {calibration!r}"
             )
         self.calibration = calibration
+        if residual is not None and not isinstance(residual, ObjectResidual):
+            raise ValueError(f"residual must be an ObjectResidual or None, got {residual!r}")
+        self.residual = residual
 
     def calibrated(self, contacts: Contacts) -> Contacts:
         """``contacts`` as the model sees them: μ scaled by the calibration, if any."""
@@ -141,8 +150,22 @@ class ComplementarityFree(ContactModel):
         return K, D
 
     def freeze(
-        self, contacts: Contacts, h: float, q=None, *, compile: bool = False
+        self,
+        contacts: Contacts,
+        h: float,
+        q=None,
+        *,
+        compile: bool = False,
+        without_residual: bool = False,
     ) -> FrozenComplementarityFree:
+        """As :meth:`ContactModel.freeze`. A model holding a residual refuses, unless
+        ``without_residual``: the contact step alone, for a caller that applies
+        :attr:`residual` itself (as :func:`~torchcontact.learn.fit.predict` does)."""
+        if self.residual is not None and not without_residual:
+            raise ValueError(
+                "model holds an object residual, which the frozen step (the MPC's) does not "
+                "apply: plan with the model without it (model.residual = None)"
+            )
         contacts = self.calibrated(contacts)
         jac, phi, _ = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
@@ -171,6 +194,10 @@ class ComplementarityFree(ContactModel):
         lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma, second)
         lam = lam * active.to(lam.dtype)
         v = velocity_from_multipliers(solve, b, jac, lam, h)
+        if self.residual is not None:
+            if q is None:
+                raise ValueError("q must be given to a model with an object residual, got None")
+            v = self.residual(q, b, v, h)
         return v, lam * _batch_scalar(h)
 
     def extra_repr(self) -> str:

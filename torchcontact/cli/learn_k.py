@@ -23,6 +23,7 @@ splits. Errors are means over the test windows; the combined error is the MPC's
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import datetime
 import functools
@@ -61,6 +62,7 @@ from torchcontact.learn.evaluate import (
 )
 from torchcontact.learn.fit import StepData, fit_steps
 from torchcontact.learn.policies import ACTIONS
+from torchcontact.learn.residual_fit import fit_residual
 from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
 from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
@@ -95,6 +97,9 @@ ABLATIONS = {
 }
 """``--ablate``'s extra fits per split: the best constant K with the system factors fitted, and
 the learned K(q), D(q) without them (each otherwise as the learned model)."""
+
+WITHOUT_RESIDUAL = "learned_without_residual"
+"""With ``--residual``: the learned model before its residual, evaluated beside it."""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -153,6 +158,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         f"or 'none' (default {','.join(PARTS)}, and {MOMENTUM} on the TriFinger)",
     )
     add("--loss-horizon", type=int, default=1, help="steps of the training loss's rollouts")
+    add(
+        "--residual",
+        type=int,
+        default=0,
+        metavar="H",
+        help="fit an object residual of H hidden units after K, D and the factors "
+        "(torchcontact.residual; the MPC plans with it); 0: none (default)",
+    )
     add(
         "--robot-weight",
         type=float,
@@ -400,14 +413,21 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
         for name, part in (("train", train), ("val", val))
     }
     progress = not args.no_progress
+    contact_only = dataclasses.replace(config, residual=0)  # the residual comes second
     result = fit_steps(
-        build_model(config, meta), data["train"], data["val"], weights, config, progress
+        build_model(contact_only, meta), data["train"], data["val"], weights, config, progress
     )
-    learned = result.model.cpu()
+    learned, extra, seconds = result.model, {}, result.seconds
+    if config.residual:
+        extra[WITHOUT_RESIDUAL] = copy.deepcopy(learned).cpu()
+        train, val = data["train"], data["val"]
+        seconds += fit_residual(learned, train, val, meta["joints"], config, progress).seconds
+    learned = learned.cpu()
     models = {
         "paper_k": constant_model(meta["paper_stiffness"], meta),
         "best_constant_k": constant_model(best_k, meta),
         "learned": learned,
+        **extra,
     }
     for key, change in ABLATIONS.items() if args.ablate else ():
         variant = dataclasses.replace(config, **change)
@@ -441,7 +461,7 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
         },
         "improvement_vs_best_constant_robot_recorded": improvement("rollout_robot_recorded"),
         "best_constant_k": best_k,
-        "fit_seconds": result.seconds,
+        "fit_seconds": seconds,
         "fit": {
             **asdict(config),
             "best_epoch": result.best_epoch,
@@ -557,6 +577,7 @@ def run(args: argparse.Namespace) -> dict:
     write_csv(args.results / "history.csv", first["history"])
     summary = {}
     ablated = [f"rollout10_err_{key}" for key in ABLATIONS if args.ablate]
+    ablated += [f"rollout10_err_{WITHOUT_RESIDUAL}"] if args.residual else []
     for key in (*AVERAGED, *ablated):
         summary[key], summary[f"{key}_sd"] = _mean_sd([split[key] for split in splits])
     meta = transitions.meta
@@ -627,7 +648,7 @@ def print_table(record: dict, stiffness: str) -> None:
         f"with the recorded robot motion "
         f"{100 * record['improvement_vs_best_constant_robot_recorded']:.1f} %"
     )
-    ablations = [key for key in ABLATIONS if f"rollout10_err_{key}" in record]
+    ablations = [key for key in (*ABLATIONS, WITHOUT_RESIDUAL) if f"rollout10_err_{key}" in record]
     if ablations:
         cells = ", ".join(
             f"{key.replace('_', ' ')} {record[f'rollout10_err_{key}']:.3g}" for key in ablations
