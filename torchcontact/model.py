@@ -160,11 +160,13 @@ class ComplementarityFree(ContactModel):
     ) -> FrozenComplementarityFree:
         """As :meth:`ContactModel.freeze`. A model holding a residual refuses, unless
         ``without_residual``: the contact step alone, for a caller that applies
-        :attr:`residual` itself (as :func:`~torchcontact.learn.fit.predict` does)."""
+        :attr:`residual` itself (as :func:`~torchcontact.learn.fit.predict` and the MPC's
+        rollout do)."""
         if self.residual is not None and not without_residual:
             raise ValueError(
-                "model holds an object residual, which the frozen step (the MPC's) does not "
-                "apply: plan with the model without it (model.residual = None)"
+                "model holds an object residual, which a frozen step cannot apply (it sees one "
+                "state): freeze with without_residual=True and apply model.residual at each "
+                "state, as the MPC's rollout does"
             )
         contacts = self.calibrated(contacts)
         jac, phi, _ = contacts.dual_rows(self.facets)
