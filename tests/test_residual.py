@@ -2,10 +2,12 @@
 checkpoints, and the MPC's refusal."""
 
 import dataclasses
+import io
 
 import pytest
 import torch
 
+from torchcontact import ComplementarityFree
 from torchcontact.checkpoint import FitConfig, build_model, load_checkpoint, save_checkpoint
 from torchcontact.integrate import JointLayout, integrate, object_indices
 from torchcontact.learn.data import collect, load
@@ -132,3 +134,12 @@ def test_bad_arguments_are_named(transitions):
         FitConfig(residual=-1)
     with pytest.raises(ValueError, match="features must have shape"):
         _residual(meta).standardize(torch.zeros(3, 2))
+
+
+def test_a_model_pickled_before_residuals_loads_without_one():
+    model = ComplementarityFree(1.0)
+    del model.__dict__["residual"]  # as a model pickled by an older release holds it
+    buffer = io.BytesIO()
+    torch.save(model, buffer)
+    buffer.seek(0)
+    assert torch.load(buffer, weights_only=False).residual is None

@@ -135,6 +135,11 @@ class ComplementarityFree(ContactModel):
             raise ValueError(f"residual must be an ObjectResidual or None, got {residual!r}")
         self.residual = residual
 
+    def __setstate__(self, state: dict) -> None:
+        super().__setstate__(state)
+        if "residual" not in self._modules:  # pickled before models had residuals
+            self.__dict__.setdefault("residual", None)
+
     def calibrated(self, contacts: Contacts) -> Contacts:
         """``contacts`` as the model sees them: μ scaled by the calibration, if any."""
         return contacts if self.calibration is None else self.calibration.contacts(contacts)
