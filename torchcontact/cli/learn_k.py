@@ -164,7 +164,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=0,
         metavar="H",
         help="fit an object residual of H hidden units after K, D and the factors "
-        "(torchcontact.residual; the MPC plans with it); 0: none (default)",
+        "(torchcontact.residual): better prediction; the MPC plans with it, but on the Allegro "
+        "it planned worse (README); 0: none (default)",
     )
     add(
         "--robot-weight",
