@@ -7,7 +7,9 @@ in their box (gradients by ``torch.func``); apply u₀; warm-start the next solv
 shifted plan. The contact model, the cost and the planner are each chosen by name or passed
 in; :meth:`ContactImplicitMPC.from_env` builds the MPC of an environment's plant. A system that
 carries the object's momentum (a fitted calibration's ``object_momentum``) is rolled out from
-the object's displacement between the last two states planned from.
+the object's displacement between the last two states planned from. A model with an object
+residual (:class:`~torchcontact.residual.ObjectResidual`) plans with it as
+:data:`RESIDUAL_PLANS` says.
 """
 
 from __future__ import annotations
@@ -41,6 +43,15 @@ CONTACT_BUCKET = 4
 plan is specialised to its number of rows, so scenes of nearby slot counts share one compiled
 graph instead of compiling one each (a minute or more apiece). Padding rows are zero, so they
 change no velocity."""
+
+RESIDUAL_PLANS = ("fixed", "full")
+"""How the MPC plans with a model's object residual. ``"fixed"``: the residual's correction
+``δv`` is evaluated once per solve, along the warm start (the shifted last plan) from the
+measured state, and added as a constant to the planned steps, so the plan's gradient is the
+contact model's (a zero-order correction of the model's error, in distribution since the warm
+start is what the MPC did). ``"full"``: the residual is evaluated, and differentiated, at every
+planned state and control (on the Allegro its plans stalled: the planner steered the network
+toward commands its data never held, docs/experiments.md)."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +91,8 @@ class ContactImplicitMPC:
             machine has compiled before is loaded at once (see
             :mod:`~torchcontact.mpc.background`). Needs a planner with an ``eager()`` method
             (L-BFGS has one); :attr:`Plan.compiled` tells which steps the graph planned.
+        residual_plan: one of :data:`RESIDUAL_PLANS`, how a model's object residual enters
+            the plan (no effect on a model without one).
     """
 
     def __init__(
@@ -98,7 +111,12 @@ class ContactImplicitMPC:
         dtype: torch.dtype = torch.float64,
         gaps: str = "frozen",
         background_compile: bool = False,
+        residual_plan: str = "fixed",
     ):
+        if residual_plan not in RESIDUAL_PLANS:
+            raise ValueError(
+                f"residual_plan must be one of {RESIDUAL_PLANS}, got {residual_plan!r}"
+            )
         if not isinstance(horizon, int) or horizon < 1:
             raise ValueError(f"horizon must be a positive integer, got {horizon!r}")
         if not h > 0:
@@ -111,6 +129,7 @@ class ContactImplicitMPC:
         self.model = model.to(dtype)
         self.layout, self.fingertips, self.cost = layout, fingertips, cost
         self.horizon, self.h, self.dtype, self.gaps = horizon, float(h), dtype, gaps
+        self.residual_plan = residual_plan
         self.planner = LBFGS(compile=compile) if planner is None else planner
         n_u = system.n_robot
         self.lower = torch.as_tensor(u_lower, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
@@ -137,6 +156,7 @@ class ContactImplicitMPC:
         settings: MPCSettings | str | None = None,
         cost: Cost | str | None = None,
         background_compile: bool = False,
+        residual_plan: str = "fixed",
     ) -> ContactImplicitMPC:
         """The MPC of ``env``'s ``plant``: its system (the plant's object mass), layout,
         fingertips, cost, control box and h.
@@ -151,7 +171,7 @@ class ContactImplicitMPC:
         built with the settings' iterations, memory and compilation (None: ``env.planner``);
         ``settings``: solver settings or a preset name (default the environment's default
         preset);
-        ``background_compile``: as in the constructor.
+        ``background_compile``, ``residual_plan``: as in the constructor.
         """
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
@@ -190,6 +210,7 @@ class ContactImplicitMPC:
             dtype=dtype,
             gaps=settings.gaps,
             background_compile=background_compile,
+            residual_plan=residual_plan,
         )
 
     def reset(self) -> None:
@@ -253,59 +274,90 @@ class ContactImplicitMPC:
         """Whether the system carries the object's momentum from step to step."""
         return getattr(self.system, "object_momentum", None) is not None
 
-    def rollout(self, q0, controls, frozen, moved=None) -> torch.Tensor:
+    @property
+    def fixes_residual(self) -> bool:
+        """Whether the model has a residual that plans enter as a constant (``"fixed"``)."""
+        return self.residual is not None and self.residual_plan == "fixed"
+
+    def rollout(self, q0, controls, frozen, moved=None, corrections=None) -> torch.Tensor:
         """States ``(..., T+1, nq)`` from ``q0 (nq,)`` under ``controls (..., T, n_u)``.
 
         The step ``frozen`` (:meth:`freeze`) stays frozen over the horizon, as does Q: so with
         frozen gaps each step's velocity depends on its own control only and all T are
         computed at once; propagated gaps chain the steps through φ̃, and a system carrying
         momentum through the object's displacement, ``moved (n_o,)`` [m, rad] before q0.
+        ``corrections (T, nv)`` [m/s, rad/s] are added to the steps' velocities (a fixed
+        residual, :meth:`residual_corrections`); without them a model's residual is applied
+        at each planned state.
         """
-        if self.carries_momentum or self.residual is not None:
-            return self._chained_rollout(q0, controls, frozen, moved)
+        if self.carries_momentum or (self.residual is not None and corrections is None):
+            return self._chained_rollout(q0, controls, frozen, moved, corrections)[0]
         Q, b = self.system(controls)
         states = [q0.expand(*controls.shape[:-2], -1)]
         if self.gaps == "propagated":
             for t in range(self.horizon):
-                v = frozen.velocity(Q, b[..., t, :])
+                v = _corrected(frozen.velocity(Q, b[..., t, :]), corrections, t)
                 states.append(integrate(states[-1], v, self.h, self.layout))
                 frozen = frozen.advance_gaps(v)
             return torch.stack(states, dim=-2)
         v = frozen.velocity(Q, b)
+        if corrections is not None:
+            v = v + corrections
         for t in range(self.horizon):
             states.append(integrate(states[-1], v[..., t, :], self.h, self.layout))
         return torch.stack(states, dim=-2)
 
-    def _chained_rollout(self, q0, controls, frozen, moved) -> torch.Tensor:
+    def _chained_rollout(self, q0, controls, frozen, moved, corrections=None):
         """:meth:`rollout` step by step, for a system carrying momentum (the steps chained
         through the object's displacement) or a model with a residual (applied at each
-        planned state), and φ̃ with propagated gaps."""
-        states = [q0.expand(*controls.shape[:-2], -1)]
+        planned state unless ``corrections`` are given), and φ̃ with propagated gaps. Returns
+        the states and the residual's corrections ``(..., T, nv)`` it applied (None without)."""
+        states, applied = [q0.expand(*controls.shape[:-2], -1)], []
         for t in range(self.horizon):
             options = {"object_displacement": moved} if self.carries_momentum else {}
             Q, b = self.system(controls[..., t, :], **options)
             v = frozen.velocity(Q, b)
-            if self.residual is not None:
-                v = self.residual(states[-1], b, v, self.h)
+            if corrections is not None:
+                v = _corrected(v, corrections, t)
+            elif self.residual is not None:
+                corrected = self.residual(states[-1], b, v, self.h)
+                applied.append(corrected - v)
+                v = corrected
             states.append(integrate(states[-1], v, self.h, self.layout))
             moved = self.h * v[..., self._object_rows]
             if self.gaps == "propagated":
                 frozen = frozen.advance_gaps(v)
-        return torch.stack(states, dim=-2)
+        applied = torch.stack(applied, dim=-2) if applied else None
+        return torch.stack(states, dim=-2), applied
 
-    def objective(self, controls, q0, frozen, target_p, target_quat, previous=None):
-        """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`);
-        ``previous (nq,)``: the state planned from before ``q0`` when the system carries
-        momentum (the object's displacement to ``q0`` is worked out here, inside the traced
-        graph, rather than eagerly before each solve)."""
+    def residual_corrections(self, q0, controls, frozen, previous=None) -> torch.Tensor:
+        """The residual's corrections ``(T, nv)`` [m/s, rad/s] along ``controls (T, n_u)``
+        from ``q0 (nq,)`` (``frozen`` and ``previous`` as in :meth:`objective`), without
+        gradient: the constants a ``"fixed"`` residual plan adds to its steps."""
+        if self.residual is None:
+            raise ValueError("residual_corrections needs a model with a residual")
+        with torch.no_grad():
+            frozen = frozen.linearized(*self.system(controls))
+            moved = None if previous is None else self.displacement(previous, q0)
+            return self._chained_rollout(q0, controls, frozen, moved)[1]
+
+    def objective(self, controls, q0, frozen, target_p, target_quat, *extras):
+        """Cost ``(...)`` of ``controls (..., T, n_u)`` (arguments as :meth:`rollout`).
+        ``extras``, each optional, told apart by their shapes: ``previous (nq,)``, the state
+        planned from before ``q0`` when the system carries momentum (the object's
+        displacement to ``q0`` is worked out here, inside the traced graph, rather than
+        eagerly before each solve; none: at rest), and the residual's ``corrections (T, nv)``
+        when it is fixed (:attr:`fixes_residual`; none: the residual applied in full)."""
+        previous = next((extra for extra in extras if extra.dim() == 1), None)
+        corrections = next((extra for extra in extras if extra.dim() == 2), None)
         moved = None if previous is None else self.displacement(previous, q0)
-        states = self.rollout(q0, controls, frozen, moved)
+        states = self.rollout(q0, controls, frozen, moved, corrections)
         pose = self.layout.object_pose(states)
         tips = self.fingertips(states)
         return self.cost(pose[..., :3], pose[..., 3:], tips, controls, target_p, target_quat)
 
     def value_and_grad(
-        self, controls, q0, frozen, target_p, target_quat, *previous, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *extras, compiled: bool = True
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Cost ``(B,)`` and its gradient ``(B, T, n_u)`` for ``controls (B, T, n_u)``.
 
@@ -314,16 +366,16 @@ class ContactImplicitMPC:
         """
         frozen = frozen.linearized(*self.system(controls))
         differentiate = self._differentiate if compiled else self.differentiate
-        return differentiate(controls, q0, frozen, target_p, target_quat, *previous)
+        return differentiate(controls, q0, frozen, target_p, target_quat, *extras)
 
     def value(
-        self, controls, q0, frozen, target_p, target_quat, *previous, compiled: bool = True
+        self, controls, q0, frozen, target_p, target_quat, *extras, compiled: bool = True
     ) -> torch.Tensor:
         """Cost ``(B,)`` of ``controls (B, T, n_u)`` without its gradient (for sampling), the
         frozen step linearized as in :meth:`value_and_grad`."""
         frozen = frozen.linearized(*self.system(controls))
         objective = self._objective if compiled else self.objective
-        return objective(controls, q0, frozen, target_p, target_quat, *previous)
+        return objective(controls, q0, frozen, target_p, target_quat, *extras)
 
     def differentiate(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`value_and_grad` of :meth:`objective` by ``torch.func.grad``.
@@ -389,6 +441,10 @@ class ContactImplicitMPC:
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         targets = (target_p, target_quat) + self._previous(q)
+        if self.fixes_residual:
+            frozen = self.freeze(q, contacts, compiled=False)
+            warm = self._warm.reshape(self.horizon, -1)
+            targets += (self.residual_corrections(q, warm, frozen, *targets[2:]),)
         inputs = (q, contacts, targets, self._warm.clone())
         compiled = self.compiled
         if self._background is not None:
@@ -425,8 +481,7 @@ class ContactImplicitMPC:
 
     def _solve(self, q, contacts, targets, warm, compiled: bool):
         """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
-        ``targets``: the target position and quaternion, then the previous plan's state when
-        the system carries momentum (the objective's trailing arguments)."""
+        ``targets``: the target position and quaternion, then the objective's ``extras``."""
         eager = self._eager_planner if self._eager_planner is not None else self.planner
         planner = self.planner if compiled else eager
         box = (self.lower, self.upper)
@@ -462,5 +517,11 @@ class ContactImplicitMPC:
             self._graph_keys[shape] = graph_key(
                 self.model, self.cost, self.fingertips, self.layout, self.planner, self.system,
                 self.horizon, self.h, self.dtype, self.gaps, *shape, self.lower, self.upper,
+                *(("residual_plan", self.residual_plan) if self.residual is not None else ()),
             )  # fmt: skip
         return self._graph_keys[shape]
+
+
+def _corrected(v: torch.Tensor, corrections: torch.Tensor | None, t: int) -> torch.Tensor:
+    """Velocity ``v (..., nv)`` of step ``t`` plus its fixed correction, if any."""
+    return v if corrections is None else v + corrections[t]

@@ -29,6 +29,7 @@ from torchcontact.environments.costs import COSTS
 from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
+from torchcontact.mpc.controller import RESIDUAL_PLANS
 from torchcontact.mpc.planners import PLANNERS
 from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
@@ -220,6 +221,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         help="a `torchcontact learn-k` checkpoint (model.pt): plan with its learned K(q), D(q)",
+    )
+    parser.add_argument(
+        "--residual-plan",
+        choices=RESIDUAL_PLANS,
+        default="fixed",
+        help="how a --learned model's object residual enters the plan: fixed (its correction "
+        "along the warm start, added as a constant; default) or full (re-evaluated and "
+        "differentiated at every planned state)",
     )
     parser.add_argument(
         "--collision",

@@ -91,6 +91,7 @@ LEGACY_DEFAULTS = {
     "hold_approach": 1.0,
     "pose_stage": 0.0,
     "pose_stage_radius": math.inf,
+    "residual_plan": "fixed",
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -201,6 +202,8 @@ class TrialConfig:
         pose_stage_radius: [m] with ``pose_stage``, how near the target the object's centre
             must start a plan for the stage to apply (inf: every plan; a record stores it as
             null); :func:`trial_configs` gives the environment's unless told.
+        residual_plan: how the plan uses a learned model's object residual
+            (:data:`~torchcontact.mpc.controller.RESIDUAL_PLANS`; no effect without one).
     """
 
     env: str
@@ -238,6 +241,7 @@ class TrialConfig:
     hold_approach: float = 1.0
     pose_stage: float = 0.0
     pose_stage_radius: float = math.inf
+    residual_plan: str = "fixed"
 
     @property
     def object_options(self) -> ObjectOptions:
@@ -469,7 +473,14 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
             term = "hold_approach" if config.hold_approach != 1 else "pose_stage_radius"
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
-        env, plant, model, config.planner, config.settings, cost, background_compile=True
+        env,
+        plant,
+        model,
+        config.planner,
+        config.settings,
+        cost,
+        background_compile=True,
+        residual_plan=config.residual_plan,
     )
     return env, plant, mpc
 

@@ -33,11 +33,13 @@ def env():
     return FINGERTIPS.make_plant("cube")
 
 
-def _mpc(plant, model=None, **options):
+def _mpc(plant, model=None, residual_plan="fixed", **options):
     """The fingertips' MPC of ``plant``, eager, with the paper's settings changed by ``options``
     (``model``: None for the paper's at the default K, or a name or model)."""
     solver = MPCSettings(compile=False, **options)
-    return ContactImplicitMPC.from_env(FINGERTIPS, plant, model, settings=solver)
+    return ContactImplicitMPC.from_env(
+        FINGERTIPS, plant, model, settings=solver, residual_plan=residual_plan
+    )
 
 
 @pytest.fixture(scope="module")
@@ -130,16 +132,10 @@ def test_a_momentum_rollout_chains_the_objects_displacement(env, gaps):
 
 @pytest.mark.parametrize("gaps", GAPS)
 def test_a_residual_is_applied_at_every_planned_state(env, gaps):
-    """A model with an object residual plans each step as the model's own forward at that
-    state, the contacts frozen; a plan through it keeps its box."""
-    model = ComplementarityFree(FINGERTIPS.default_stiffness).double()
-    model.residual = ObjectResidual(
-        *object_indices(FINGERTIPS.layout.joints), 16, 15, hidden=8
-    ).double()
-    with torch.no_grad():
-        for parameter in model.residual.parameters():
-            parameter.normal_(0.0, 0.3)
-    mpc = _mpc(env, model, max_iter=5, gaps=gaps)
+    """A model with an object residual rolls each step out as the model's own forward at that
+    state, the contacts frozen; a plan through it (``residual_plan="full"``) keeps its box."""
+    model = _residual_model()
+    mpc = _mpc(env, model, "full", max_iter=5, gaps=gaps)
     q, contacts = _touching_state(env)
     step = mpc.freeze(q, contacts)
     controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT)
@@ -154,10 +150,79 @@ def test_a_residual_is_applied_at_every_planned_state(env, gaps):
         torch.testing.assert_close(states[:, t + 1], state)
         if gaps == "propagated":
             step = step.advance_gaps(v)
-    without = mpc.rollout(q, controls, _mpc(env, max_iter=5, gaps=gaps).freeze(q, contacts))
+    plain = _mpc(env, max_iter=5, gaps=gaps)
+    without = plain.rollout(q, controls, plain.freeze(q, contacts))
     assert not torch.allclose(states[:, 1], without[:, 1])
     plan = mpc.plan(q, contacts, *TARGET)
     assert bool((plan.controls.abs() <= CONTROL_BOUND + 1e-12).all())
+
+
+def _residual_model(seed: int = 0) -> ComplementarityFree:
+    """The fingertips' default paper model with a random (not zero) object residual."""
+    model = contact_model("paper", stiffness=FINGERTIPS.default_stiffness).double()
+    model.support_pass = FINGERTIPS.support_pass  # as the environment's default model
+    model.residual = ObjectResidual(
+        *object_indices(FINGERTIPS.layout.joints), 16, 15, hidden=8
+    ).double()
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for parameter in model.residual.parameters():
+            parameter.copy_(0.3 * torch.randn(parameter.shape, generator=generator, dtype=DT))
+    return model
+
+
+@pytest.mark.parametrize("gaps", GAPS)
+def test_a_fixed_residual_plans_with_its_corrections_along_the_warm_start(env, gaps):
+    """``residual_plan="fixed"``: along the warm start the plan's states are the residual's
+    own; elsewhere its corrections are constants, so the plan's gradient is the contact
+    model's; each solve evaluates them along its own warm start."""
+    model = _residual_model()
+    mpc = _mpc(env, model, max_iter=5, gaps=gaps)
+    assert mpc.residual_plan == "fixed" and mpc.fixes_residual
+    q, contacts = _touching_state(env)
+    step = mpc.freeze(q, contacts)
+    warm = 0.003 * torch.randn(mpc.horizon, 9, dtype=DT)
+    corrections = mpc.residual_corrections(q, warm, step)
+    assert corrections.shape == (mpc.horizon, 15)
+    assert bool((corrections[:, 6:] == 0).all()) and bool(corrections[:, :6].abs().gt(0).any())
+    with torch.no_grad():
+        full = mpc.rollout(q, warm[None], step)
+    torch.testing.assert_close(mpc.rollout(q, warm[None], step, None, corrections), full)
+    controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT, requires_grad=True)
+    cost = mpc.objective(controls, q, step, *TARGET, corrections).sum()
+    (grad,) = torch.autograd.grad(cost, controls)
+    plain = _mpc(env, max_iter=5, gaps=gaps)
+    plain_step = plain.freeze(q, contacts)
+    shifted = plain.rollout(q, controls, plain_step, None, corrections)
+    torch.testing.assert_close(mpc.rollout(q, controls, step, None, corrections), shifted)
+    (plain_grad,) = torch.autograd.grad(
+        plain.cost(*_pose_and_tips(plain, shifted), controls, *TARGET).sum(), controls
+    )
+    torch.testing.assert_close(grad, plain_grad)
+    for _ in range(2):  # the first solve from zero, the second from the shifted plan
+        expected = mpc.residual_corrections(q, mpc._warm.reshape(mpc.horizon, -1), step)
+        plan = mpc.plan(q, contacts, *TARGET)
+        with torch.no_grad():
+            planned = mpc.objective(plan.controls[None], q, step, *TARGET, expected)
+        assert float(planned[0]) == pytest.approx(plan.cost, rel=1e-9)
+        assert bool((plan.controls.abs() <= CONTROL_BOUND + 1e-12).all())
+
+
+def _pose_and_tips(mpc, states):
+    """The object's position and quaternion and the fingertips of ``states``, as the cost
+    takes them."""
+    pose = mpc.layout.object_pose(states)
+    return pose[..., :3], pose[..., 3:], mpc.fingertips(states)
+
+
+def test_the_residual_plan_is_checked(env):
+    with pytest.raises(ValueError, match="residual_plan must be one of"):
+        _mpc(env, residual_plan="exact")
+    q, contacts = _touching_state(env)
+    mpc = _mpc(env, max_iter=5)
+    assert not mpc.fixes_residual
+    with pytest.raises(ValueError, match="needs a model with a residual"):
+        mpc.residual_corrections(q, torch.zeros(mpc.horizon, 9, dtype=DT), mpc.freeze(q, contacts))
 
 
 def test_the_mpc_plans_from_the_objects_last_displacement(env):

@@ -10,7 +10,7 @@ from torchcontact.environments import environment
 from torchcontact.environments.fingertips import PAPER_STIFFNESS, STIFFNESS
 from torchcontact.mpc.evaluate import configs_of, parse_args
 from torchcontact.mpc.report import SUMMARY_KEYS
-from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig
+from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig, build_trial
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
@@ -113,6 +113,13 @@ def test_the_options_become_one_trial_config_per_seed_and_pair():
 def test_first_seed_moves_the_seeds_off_the_reported_ones():
     args = parse_args(["fingertips", "--task", "rotation", "--trials", "3", "--first-seed", "20"])
     assert sorted({c.seed for c in configs_of(args)}) == [20, 21, 22]
+
+
+def test_a_residuals_plan_is_fixed_unless_told_and_reaches_the_mpc():
+    assert configs_of(parse_args(["fingertips"]))[0].residual_plan == "fixed"
+    config = configs_of(parse_args(["fingertips", "--residual-plan", "full"]))[0]
+    assert config.residual_plan == "full"
+    assert build_trial(config)[2].residual_plan == "full"
 
 
 def test_each_model_has_its_own_variant_the_default_output_folder():
