@@ -441,10 +441,8 @@ class ContactImplicitMPC:
         contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         targets = (target_p, target_quat) + self._previous(q)
-        if self.fixes_residual:
-            frozen = self.freeze(q, contacts, compiled=False)
-            warm = self._warm.reshape(self.horizon, -1)
-            targets += (self.residual_corrections(q, warm, frozen, *targets[2:]),)
+        if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out
+            targets += (self._warm.reshape(self.horizon, -1).clone(),)
         inputs = (q, contacts, targets, self._warm.clone())
         compiled = self.compiled
         if self._background is not None:
@@ -481,7 +479,8 @@ class ContactImplicitMPC:
 
     def _solve(self, q, contacts, targets, warm, compiled: bool):
         """The planner's result from the warm start ``warm (1, T·n_u)``, compiled or eager;
-        ``targets``: the target position and quaternion, then the objective's ``extras``."""
+        ``targets``: the target position and quaternion, then the objective's ``extras`` (with
+        a fixed residual, the warm start ``(T, n_u)`` in place of its corrections)."""
         eager = self._eager_planner if self._eager_planner is not None else self.planner
         planner = self.planner if compiled else eager
         box = (self.lower, self.upper)
@@ -493,21 +492,28 @@ class ContactImplicitMPC:
             )  # fmt: skip
             with validate_args(False):
                 return planner.plan(objective, warm, box, args=(q, contacts, *targets))
-        with torch.no_grad():
-            frozen = self.freeze(q, contacts, compiled)
+        args = self._frozen_args(q, contacts, *targets, compiled=compiled)
         if compiled:
-            traceable = self._flat_differentiate if frozen.traceable else None
+            traceable = self._flat_differentiate if args[1].traceable else None
             objective = Objective(self._flat_value_and_grad, traceable, self._flat_value)
         else:
             objective = Objective(self._flat_eager_value_and_grad, value=self._flat_eager_value)
         with validate_args(False):
-            return planner.plan(objective, warm, box, args=(q, frozen, *targets))
+            return planner.plan(objective, warm, box, args=args)
 
-    def _frozen_args(self, q, contacts, *targets) -> tuple:
-        """The objective's arguments ``(q, frozen, *targets)`` from ``(q, contacts,
-        *targets)``: the model's step frozen at ``contacts`` (an :attr:`Objective.prepare`)."""
+    def _frozen_args(self, q, contacts, *targets, compiled: bool | None = None) -> tuple:
+        """The objective's arguments ``(q, frozen, *extras)`` from ``(q, contacts,
+        *targets)`` (an :attr:`Objective.prepare`, traced into a compiled planner's first
+        call): the model's step frozen at ``contacts`` (compiled as ``compiled``, default as
+        the MPC), and with a fixed residual its corrections along the warm start that ends
+        ``targets``."""
         with torch.no_grad():
-            return (q, self.freeze(q, contacts), *targets)
+            frozen = self.freeze(q, contacts, compiled)
+            if not self.fixes_residual:
+                return (q, frozen, *targets)
+            *targets, warm = targets
+            corrections = self.residual_corrections(q, warm, frozen, *targets[2:])
+            return (q, frozen, *targets, corrections)
 
     def _graph_key(self, contacts: Contacts) -> str:
         """What the compiled graph of a solve at ``contacts`` is specialised to (all but the

@@ -452,6 +452,23 @@ def test_compiled_plan_matches_the_eager_plan(env, gaps):
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_a_compiled_plan_works_out_a_fixed_residual_as_eager(env):
+    """The fixed residual's corrections are traced with the freeze into the compiled start:
+    the same plans as eager, plan after warm-started plan."""
+    q, contacts = _touching_state(env)
+    options = {"horizon": 2, "max_iter": 8}
+    eager = _mpc(env, _residual_model(), **options)
+    compiled = ContactImplicitMPC.from_env(
+        FINGERTIPS, env, _residual_model(), settings=MPCSettings(compile=True, **options)
+    )
+    assert compiled.fixes_residual
+    for _ in range(3):
+        expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
+        torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
+        assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
 def test_a_traced_objective_works_out_the_objects_displacement_as_eager(env):
     """With momentum the objective takes the previous plan's state and works the object's
     displacement out itself, which the MPC traces into its compiled graphs."""
