@@ -189,6 +189,17 @@ def test_objects_are_listed_once_in_order():
     assert len(args.objects) == 19 and args.objects[-2:] == ["random-3", "random-4"]
 
 
+def test_each_scene_fits_its_measured_factors_by_default():
+    """The TriFinger adds the object's momentum; the Allegro leaves μ alone (a fitted μ doubled
+    its falls in closed loop); an explicit list is kept as given."""
+    assert parse_args(["--scene", "trifinger"]).calibrate == (*PARTS, "object_momentum")
+    allegro = parse_args(["--scene", "allegro"]).calibrate
+    assert "friction" not in allegro and set(allegro) == set(PARTS) - {"friction"}
+    assert parse_args(["--scene", "fingertips"]).calibrate == PARTS
+    chosen = parse_args(["--scene", "allegro", "--calibrate", "friction,command_gain"])
+    assert chosen.calibrate == ("friction", "command_gain")
+
+
 def test_an_object_split_needs_three_objects(capsys):
     with pytest.raises(SystemExit):
         main(["learn-k", "--object", "cube,stick", "--split", "objects"])
