@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from torchcontact import AnitescuQP, ComplementarityFree
+from torchcontact import AnitescuQP, ComplementarityFree, RelaxedQP
 from torchcontact.calibration import SystemCalibration
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.costs import ManipulationCost
@@ -128,6 +128,15 @@ def test_a_momentum_rollout_chains_the_objects_displacement(env, gaps):
             step = step.advance_gaps(v)
     at_rest = mpc.rollout(q, controls, mpc.freeze(q, contacts))
     assert not torch.allclose(states[:, 1], at_rest[:, 1])
+
+
+def test_a_relaxed_qp_refuses_a_system_carrying_momentum(env):
+    """The QP's step is solved at all planned steps before the rollout, which momentum chains:
+    refused when built, not failing inside the first plan."""
+    mpc = _momentum_mpc(env)
+    qp = RelaxedQP(paper_relaxation(mpc.h))
+    with pytest.raises(ValueError, match="system carries the object's momentum.*RelaxedQP"):
+        ContactImplicitMPC(mpc.system, qp, mpc.layout, mpc.fingertips, mpc.cost, -1e-3, 1e-3)
 
 
 @pytest.mark.parametrize("gaps", GAPS)
