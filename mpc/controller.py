@@ -71,7 +71,8 @@ class ContactImplicitMPC:
     """MPC over a quasi-dynamic system whose contacts are frozen over the horizon.
 
     Args:
-        system: the quasi-dynamic system (Q, b(u)).
+        system: the quasi-dynamic system (Q, b(u)); one carrying the object's momentum
+            (``object_momentum``) needs the complementarity-free model.
         model: a contact model that can be frozen (:meth:`ContactModel.freeze`), e.g.
             ``contact_model("paper", stiffness=0.5)`` or ``contact_model("relaxed_qp")``.
         layout: the joint layout of q (block ``object`` a free joint, then the robot).
