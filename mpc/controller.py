@@ -126,9 +126,9 @@ class ContactImplicitMPC:
             raise ValueError(f"model must be a ContactModel, got {type(model).__name__}")
         if gaps not in GAPS:
             raise ValueError(f"gaps must be one of {GAPS}, got {gaps!r}")
-        if getattr(system, "object_momentum", None) is not None and not isinstance(
-            model, ComplementarityFree
-        ):
+        self.system = system.to(dtype)
+        self.model = model.to(dtype)
+        if self.carries_momentum and not isinstance(model, ComplementarityFree):
             # a solved step (the relaxed QP) is linearized at all T planned steps at once,
             # before the rollout; carried momentum makes each step's b depend on the last
             raise ValueError(
@@ -136,8 +136,6 @@ class ContactImplicitMPC:
                 f"model can plan with; got a {type(model).__name__}: use a system without "
                 "object_momentum (a calibration without it)"
             )
-        self.system = system.to(dtype)
-        self.model = model.to(dtype)
         self.layout, self.fingertips, self.cost = layout, fingertips, cost
         self.horizon, self.h, self.dtype, self.gaps = horizon, float(h), dtype, gaps
         self.residual_plan = residual_plan
