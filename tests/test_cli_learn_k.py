@@ -8,7 +8,7 @@ import torch
 from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import learn_k, main
-from torchcontact.cli.learn_k import parse_args
+from torchcontact.cli.learn_k import RESULTS_LABEL_LIMIT, parse_args
 from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
 
@@ -187,6 +187,17 @@ def test_objects_are_listed_once_in_order():
     assert args.objects == ["cube", "stick", "bunny"] and args.split == "objects"
     args = parse_args(["--scene", "allegro", "--object", "all,random:3-4"])
     assert len(args.objects) == 19 and args.objects[-2:] == ["random-3", "random-4"]
+
+
+def test_a_long_object_list_gets_a_short_unique_results_folder(tmp_path):
+    names = [f"random-{seed}" for seed in range(60)]
+    args = parse_args(["--scene", "trifinger", "--object", ",".join(names), "--out", str(tmp_path)])
+    other = parse_args(["--scene", "trifinger", "--object", ",".join(names[1:] + names[:1])])
+    assert len(args.results.name) <= len("trifinger_") + RESULTS_LABEL_LIMIT
+    assert args.results.name != other.results.name  # the digest tells the lists apart
+    args.results.mkdir()  # a name the file system takes
+    short = parse_args(["--scene", "trifinger", "--object", "all,random:0-51"])
+    assert short.results.name == "trifinger_all_random_0-51"
 
 
 def test_each_scene_fits_its_measured_factors_by_default():

@@ -27,6 +27,7 @@ import copy
 import dataclasses
 import datetime
 import functools
+import hashlib
 import math
 import os
 import re
@@ -262,11 +263,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if not (0 < low < high < math.inf) or count < 2 or count != int(count):
         parser.error(f"--sweep needs finite 0 < LOW < HIGH and an integer N >= 2, got {args.sweep}")
     args.grid = log_grid(low, high, int(count))
-    label = Path(args.object).stem if len(args.objects) == 1 else re.sub(r"[,:/]", "_", args.object)
-    args.results = args.out / f"{args.scene}_{label}"
+    args.results = args.out / f"{args.scene}_{results_label(args.object, args.objects)}"
     if args.data is None:
         args.data = args.out / "data"
     return args
+
+
+RESULTS_LABEL_LIMIT = 80
+"""The longest ``--object`` label a results folder's name takes whole (a file name holds 255
+bytes); a longer one is cut and given a digest of the whole spec, so it stays unique."""
+
+
+def results_label(spec: str, objects: list[str]) -> str:
+    """The results folder's label for ``--object spec`` (expanded to ``objects``): a lone
+    object's file stem, or the spec with its separators as ``_``, cut to
+    :data:`RESULTS_LABEL_LIMIT` characters plus a digest of ``spec`` when longer."""
+    label = Path(spec).stem if len(objects) == 1 else re.sub(r"[,:/]", "_", spec)
+    if len(label) <= RESULTS_LABEL_LIMIT:
+        return label
+    digest = hashlib.sha256(spec.encode()).hexdigest()[:12]
+    return f"{label[: RESULTS_LABEL_LIMIT - 13]}_{digest}"
 
 
 def _check_fit_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
