@@ -282,7 +282,7 @@ def results_label(spec: str, objects: list[str]) -> str:
     if len(label) <= RESULTS_LABEL_LIMIT:
         return label
     digest = hashlib.sha256(spec.encode()).hexdigest()[:12]
-    return f"{label[: RESULTS_LABEL_LIMIT - 13]}_{digest}"
+    return f"{label[: RESULTS_LABEL_LIMIT - len(digest) - 1]}_{digest}"
 
 
 def _check_fit_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
