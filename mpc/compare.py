@@ -14,17 +14,16 @@ trials B won and lost against A, and gives the exact two-sided McNemar p-value o
 
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from torchcontact.cli import writable_file
+from torchcontact.cli import Parser
 from torchcontact.mpc.report import tipped
 from torchcontact.mpc.trials import SET_ASIDE_STEM, read_record
-from torchcontact.results import write_json
+from torchcontact.results import writable_file, write_json
 
 TrialKey = tuple[str, str, str, int]
 """(environment, task, object, seed) of a trial."""
@@ -149,7 +148,7 @@ def compare_runs(a: str | Path, b: str | Path) -> Comparison:
 
 def main(argv: list[str] | None = None) -> int:
     """``torchcontact compare A B [--json PATH]``."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="torchcontact compare",
         description="Compare two runs' trial records trial by trial (B against A).",
     )

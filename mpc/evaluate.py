@@ -21,8 +21,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact import generated
-from torchcontact.checkpoint import load_checkpoint
-from torchcontact.cli import writable_directory, writable_file
+from torchcontact.cli import Parser
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
@@ -36,6 +35,7 @@ from torchcontact.mpc.trials import (
     MPC_MODELS,
     TrialConfig,
     finish_compiling,
+    load_learned,
     object_facts,
     run_trials,
     trial_configs,
@@ -43,18 +43,25 @@ from torchcontact.mpc.trials import (
 from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.relaxed_qp import PAPER_RELAXATION
-from torchcontact.results import write_csv, write_json
+from torchcontact.results import (
+    locked_folder,
+    writable_directory,
+    writable_file,
+    write_csv,
+    write_json,
+)
 from torchcontact.shapes import COLLISIONS, load_object
-from torchcontact.shipped import SHIPPED, resolve_learned, shipped_path
+from torchcontact.shipped import SHIPPED, shipped_path
+
+SUMMARY_FILES = ("summary.json", "trials.csv", "results.png")
+"""What :func:`write_summary` writes in ``--out``."""
 
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="torchcontact run", description="Closed-loop MPC trials in MuJoCo."
-    )
+    parser = Parser(prog="torchcontact run", description="Closed-loop MPC trials in MuJoCo.")
     parser.add_argument("env", choices=sorted([*ENVIRONMENTS, CUSTOM]), help="the environment")
     parser.add_argument("--task", default="all", help="a task of the environment or 'all'")
     parser.add_argument(
@@ -419,7 +426,7 @@ def _load_inputs(args: argparse.Namespace, env) -> None:
     trial: ``ValueError`` naming the option when one is not what it should be."""
     if args.learned is not None:
         try:
-            load_checkpoint(resolve_learned(args.learned, args.env))
+            load_learned(args.learned, args.env, args.robot, args.tips)
         except ValueError as error:
             raise ValueError(f"--learned: {error}") from None
     options = args.object_options
@@ -487,9 +494,10 @@ def write_summary(args: argparse.Namespace, records: list[dict], out: Path) -> d
         )
         for task, obj in args.pairs
     }
-    write_json(out / "summary.json", summary)
-    write_csv(out / "trials.csv", [report.csv_row(r) for r in records])
-    report.plot_results(records, out / "results.png")
+    json_file, csv_file, figure = (out / name for name in SUMMARY_FILES)
+    write_json(json_file, summary)
+    write_csv(csv_file, [report.csv_row(r) for r in records])
+    report.plot_results(records, figure)
     if args.figure is not None:
         report.plot_results(records, args.figure)
     if args.json is not None:
@@ -532,6 +540,8 @@ def main(argv: list[str] | None = None) -> int:
     out = Path("results") / configs[0].variant if args.out is None else args.out
     videos = [c for c in configs if c.seed == 0] if args.video else []
     writable_directory("--out", out)
+    for name in SUMMARY_FILES:
+        writable_file(f"--out's {name}", out / name)
     for option, path in (("--json", args.json), ("--figure", args.figure)):
         if path is not None:
             writable_file(option, path)
@@ -554,18 +564,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     for line in describe_objects(args):
         print(line)
-    print(report.TABLE_HEADER)
-    records = run_trials(
-        configs,
-        workers=args.workers,
-        out=out,
-        videos=videos,
-        progress=not args.no_progress,
-        on_record=lambda record, reused: tqdm.write(report.table_row(record.to_dict())),
-        backend=args.backend,
-        address=args.address,
-    )
-    summary = write_summary(args, [r.to_dict() for r in records], out)
+    with locked_folder(out, "--out"):
+        print(report.TABLE_HEADER)
+        records = run_trials(
+            configs,
+            workers=args.workers,
+            out=out,
+            videos=videos,
+            progress=not args.no_progress,
+            on_record=lambda record, reused: tqdm.write(report.table_row(record.to_dict())),
+            backend=args.backend,
+            address=args.address,
+        )
+        summary = write_summary(args, [r.to_dict() for r in records], out)
     print_summary(summary, args.pairs)
     print(f"wrote {out}/summary.json, trials.csv, results.png")
     finish_compiling()

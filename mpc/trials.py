@@ -24,6 +24,7 @@ simulate the applied control (MuJoCo); the three times are recorded separately.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -40,6 +41,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from torchcontact import generated
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
@@ -47,9 +49,15 @@ from torchcontact.model import ComplementarityFree, ContactModel, RelaxedQP, con
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.objects import ObjectOptions, is_mesh_file
-from torchcontact.parallel import parallel_map
+from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
-from torchcontact.results import read_json, write_json
+from torchcontact.results import (
+    file_sha256,
+    locked_folder,
+    read_json,
+    writable_directory,
+    write_json,
+)
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
 
@@ -133,13 +141,13 @@ class RecordMismatch(ValueError):
     """A saved record at a trial's path was made with other settings or inputs than the run's."""
 
 
-def file_sha256(path: str | Path) -> str:
-    """The SHA-256 hex digest (64 characters) of the content of the file at ``path``."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+class TrialsInterrupted(KeyboardInterrupt):
+    """A run stopped by Ctrl-C; ``kept``: its trials whose records are saved, which a rerun
+    into the same folder reuses."""
+
+    def __init__(self, kept: int):
+        super().__init__(f"interrupted; {kept} trials kept, rerun to resume")
+        self.kept = kept
 
 
 @functools.cache
@@ -354,7 +362,8 @@ def trial_configs(
     (or, where it ships none, the paper model at its default K) unless ``options`` (other
     :class:`TrialConfig` fields) say otherwise."""
     description = environment(env, options.get("robot"), options.get("tips"))
-    settings = description.preset() if settings is None else settings
+    settings = _settings(description, settings)
+    _check_trial_arguments(description, pairs, seeds, max_steps, options)
     if options.get("model") == "relaxed_qp":
         options.setdefault("relaxation", PAPER_RELAXATION)
     elif options.get("stiffness") is None and options.get("learned") is None:
@@ -398,6 +407,55 @@ def trial_configs(
     ]
 
 
+def _settings(description: Environment, settings) -> MPCSettings:
+    """``settings`` of :func:`trial_configs`: an :class:`MPCSettings`, a preset's name or None
+    (the environment's default preset); ``ValueError`` naming the argument otherwise."""
+    if settings is None or isinstance(settings, str):
+        return description.preset(*([] if settings is None else [settings]))
+    if not isinstance(settings, MPCSettings):
+        raise ValueError(
+            f"settings must be MPCSettings or a preset's name, got {type(settings).__name__}"
+        )
+    return settings
+
+
+def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, options) -> None:
+    """Refuse what :func:`trial_configs` cannot make a trial of, before any trial runs, with a
+    ``ValueError`` naming the argument and what was expected (as ``torchcontact run`` does)."""
+    unknown = sorted(set(options) - {f.name for f in fields(TrialConfig)})
+    if unknown:
+        raise ValueError(f"options must be fields of TrialConfig, got {unknown[0]!r}")
+    for pair in pairs:
+        if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+            raise ValueError(f"pairs must hold (task, object) pairs, got {pair!r}")
+        task, obj = pair
+        if task not in description.tasks:
+            raise ValueError(f"pairs: task must be one of {description.tasks}, got {task!r}")
+        user = description.user_meshes and (generated.is_generated(obj) or is_mesh_file(obj))
+        if not user and (task, obj) not in description.pairs:
+            also = ", a mesh file or random-SEED" if description.user_meshes else ""
+            raise ValueError(
+                f"pairs: object of task {task!r} must be one of "
+                f"{[o for t, o in description.pairs if t == task]}{also}, got {obj!r}"
+            )
+    for seed in seeds:
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seeds must be non-negative integers, got {seed!r}")
+    if max_steps is not None and (
+        isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1
+    ):
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    for name in ("stiffness", "relaxation"):
+        value = options.get(name)
+        if value is not None and not (
+            isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf
+        ):
+            raise ValueError(f"{name} must be a positive finite number or None, got {value!r}")
+    model = options.get("model", DEFAULT_MODEL)
+    if model not in MPC_MODELS:
+        raise ValueError(f"model must be one of {MPC_MODELS}, got {model!r}")
+
+
 def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
     """The identity of ``config``'s inputs, stored as a record's ``inputs``: for each key of
     :data:`INPUT_FILES` the SHA-256 of the file its field names (None where none), and the
@@ -422,12 +480,26 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
     return {**inputs, **library_versions()}
 
 
+def load_learned(
+    learned: str, env: str, robot: str | None = None, tips: Sequence[str] | None = None
+) -> ComplementarityFree:
+    """The model (no gradients) of checkpoint ``learned`` (a path or :data:`~torchcontact
+    .shipped.SHIPPED`) for environment ``env`` (``robot``, ``tips``: a user's): a
+    :class:`~torchcontact.checkpoint.CheckpointError` naming the file when it is no
+    checkpoint, or one learned in another environment or on another state layout."""
+    from torchcontact.checkpoint import check_fits, load_checkpoint
+
+    path = resolve_learned(learned, env)
+    model, _, meta = load_checkpoint(path)
+    layout = environment(env, robot, None if tips is None else tuple(tips)).layout
+    check_fits(path, meta, None if robot is not None else env, layout.joints)
+    return model.requires_grad_(False)
+
+
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
     """The contact model of ``config`` for a model step ``h`` [s]."""
     if config.learned is not None:
-        from torchcontact.checkpoint import load_model
-
-        return load_model(resolve_learned(config.learned, config.env)).requires_grad_(False)
+        return load_learned(config.learned, config.env, config.robot, config.tips)
     if config.model == "relaxed_qp":
         kappa = PAPER_RELAXATION if config.relaxation is None else config.relaxation
         return RelaxedQP(paper_relaxation(h, kappa), facets=4)
@@ -832,35 +904,62 @@ def run_trials(
     is also saved as ``out/NAME.gif`` (by the worker); ``on_record(record, reused)`` is called
     as each record becomes available. A trial whose Ray worker dies is run once more, with a
     warning. The files' SHA-256 are computed once per distinct file per call.
+
+    Before any trial, ``out`` must be a writable folder (``ValueError`` otherwise), and the
+    run holds it (:func:`~torchcontact.results.locked_folder`): a run into a folder another
+    process holds raises :class:`~torchcontact.results.FolderInUse`. Ctrl-C raises
+    :class:`TrialsInterrupted`, counting the trials whose records are kept.
     """
+    check_backend(workers, backend, address)
     folder = None if out is None else Path(out)
     distinct = list(dict.fromkeys(configs))
+    for config in distinct:
+        if not isinstance(config, TrialConfig):
+            raise ValueError(f"configs must be TrialConfig, got {type(config).__name__}")
+        steps = config.max_steps
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {config.max_steps!r}")
     if folder is not None:
         _check_names(distinct)
+        writable_directory("out", folder / "trials")
     hashes: dict[str, str] = {}
     inputs = {config: trial_inputs(config, hashes) for config in distinct}
-    plan = _plan(folder, distinct, inputs)
+    where = {"workers": workers, "backend": backend, "address": address}
+    with contextlib.nullcontext() if folder is None else locked_folder(folder, "out"):
+        plan = _plan(folder, distinct, inputs)
+        records = _run_planned(plan, inputs, folder, videos, progress, on_record, where)
+    return [records[config] for config in configs]
+
+
+def _run_planned(plan: dict, inputs: dict, folder, videos, progress, on_record, where: dict):
+    """The records of :func:`run_trials`'s ``plan`` (of :func:`_plan`), by config: reused, or
+    run (``where``: :func:`_run_jobs`'s arguments) after setting the corrupt and stale records
+    aside; :class:`TrialsInterrupted` on Ctrl-C, counting the records saved."""
     records: dict[TrialConfig, TrialRecord] = {}
     jobs = []
-    for config, (path, status, found) in plan.items():
-        if status == "reuse":
-            records[config] = found
-            if on_record is not None:
-                on_record(found, True)
-            continue
-        if status in ("corrupt", "stale"):
-            _set_aside_with_warning(path, status, found)
-        video = folder / f"{config.name}.gif" if folder and config in videos else None
-        jobs.append(_Job(config, path, video, inputs[config]))
-    with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
-        for index, record, written in _run_jobs(jobs, workers, backend, address):
-            if jobs[index].path is not None and not written:
-                write_json(jobs[index].path, record.to_dict())
-            records[record.config] = record
-            if on_record is not None:
-                on_record(record, False)
-            bar.update()
-    return [records[config] for config in configs]
+    try:
+        for config, (path, status, found) in plan.items():
+            if status == "reuse":
+                records[config] = found
+                if on_record is not None:
+                    on_record(found, True)
+                continue
+            if status in ("corrupt", "stale"):
+                _set_aside_with_warning(path, status, found)
+            video = folder / f"{config.name}.gif" if folder and config in videos else None
+            jobs.append(_Job(config, path, video, inputs[config]))
+        with tqdm(total=len(jobs), desc="trials", disable=not progress) as bar:
+            for index, record, written in _run_jobs(jobs, **where):
+                if jobs[index].path is not None and not written:
+                    write_json(jobs[index].path, record.to_dict())
+                records[record.config] = record
+                if on_record is not None:
+                    on_record(record, False)
+                bar.update()
+    except KeyboardInterrupt:
+        kept = sum(path is not None and path.exists() for path, _, _ in plan.values())
+        raise TrialsInterrupted(kept) from None
+    return records
 
 
 BATCH = 4

@@ -11,6 +11,7 @@ import pytest
 import trimesh
 
 import torchcontact.cli
+import torchcontact.results
 from torchcontact.cli import JOBS, main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,7 +84,7 @@ def test_run_refuses_an_unwritable_out_before_any_trial(files, capsys, monkeypat
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(torchcontact.cli.tempfile, "TemporaryFile", denied)
+    monkeypatch.setattr(torchcontact.results.tempfile, "TemporaryFile", denied)
     argv = ["run", "fingertips", "--trials", "1", "--out", str(files / "out")]
     assert "Permission denied" in _refused(argv, capsys, "run", "--out")
 
@@ -128,7 +129,7 @@ def test_learn_k_refuses_an_unwritable_data_folder(files, capsys, monkeypatch):
     data = files / "data"
     real_access = os.access
     monkeypatch.setattr(
-        torchcontact.cli.os, "access", lambda p, mode: Path(p) != files and real_access(p, mode)
+        torchcontact.results.os, "access", lambda p, mode: Path(p) != files and real_access(p, mode)
     )
     argv = ["learn-k", "--out", str(files / "out"), "--data", str(data), "--no-progress"]
     _refused(argv, capsys, "learn-k", "--data")

@@ -11,7 +11,8 @@ from __future__ import annotations
 import io
 import math
 import pickle
-import zipfile
+from collections import Counter
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -197,8 +198,11 @@ def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, d
         raise CheckpointError(
             f"{path}: not a torchcontact checkpoint (expected the model.pt of learn-k)"
         ) from None
-    except (OSError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError) as error:
-        raise CheckpointError(f"{path}: not a readable checkpoint ({error})") from None
+    except IsADirectoryError:
+        raise CheckpointError(f"{path}: a directory, not a checkpoint file") from None
+    except Exception as error:  # whatever torch's loader raises on bytes that are no checkpoint
+        reason = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
+        raise CheckpointError(f"{path}: not a readable checkpoint ({reason})") from None
     if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
         found = payload.get("version") if isinstance(payload, dict) else None
         raise CheckpointError(
@@ -217,6 +221,30 @@ def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, d
             f"{path}: a damaged checkpoint: it does not rebuild its model ({error})"
         ) from None
     return model, config, meta
+
+
+def _joints(joints: Sequence[str]) -> str:
+    """``"free + 9 hinge"``: joint types and counts in order of first appearance."""
+    counts = Counter(joints)
+    return " + ".join(kind if n == 1 else f"{n} {kind}" for kind, n in counts.items()) or "none"
+
+
+def check_fits(path: str | Path, meta: dict, env: str | None, joints: Sequence[str]) -> None:
+    """Refuse, with :class:`CheckpointError` naming the file, a checkpoint (its ``meta``)
+    learned in another environment than ``env`` (None: any, for a user's robot) or on states
+    of other ``joints`` than the MPC's (its state layout)."""
+    scene = meta.get("scene")
+    if env is not None and scene != env:
+        raise CheckpointError(
+            f"{path}: a checkpoint learned in the {scene!r} environment, not {env!r}: plan "
+            f"{env} with a model learned there (learn-k --scene {env})"
+        )
+    learned = list(meta.get("joints") or ())
+    if learned != list(joints):
+        raise CheckpointError(
+            f"{path}: learned on states of joints {_joints(learned)}, but this scene's are "
+            f"{_joints(joints)}: learn a model on this scene"
+        )
 
 
 def load_model(path: str | Path) -> ComplementarityFree:

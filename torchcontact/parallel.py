@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import multiprocessing
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -69,12 +70,21 @@ def _local_map(function, items, workers: int) -> Iterator[tuple[int, Any]]:
         for index, item in enumerate(items):
             yield index, function(item)
         return
-    pool = multiprocessing.get_context("spawn").Pool(min(workers, len(items)))
+    pool = multiprocessing.get_context("spawn").Pool(min(workers, len(items)), _ignore_sigint)
     try:
         yield from pool.imap_unordered(functools.partial(_indexed, function), enumerate(items))
+    except (KeyboardInterrupt, GeneratorExit):  # Ctrl-C, or the caller stopped: stop them now
+        pool.terminate()
+        raise
     finally:
         pool.close()
         pool.join()
+
+
+def _ignore_sigint() -> None:
+    """A pool worker leaves Ctrl-C to the process that started it (which stops the pool),
+    instead of each printing its own traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _indexed(function, pair):

@@ -1,16 +1,147 @@
-"""Result files written atomically: a crash never leaves a half-written JSON, CSV or PNG."""
+"""Result files written atomically: a crash never leaves a half-written JSON, CSV or PNG.
+
+A folder that one process fills (a sweep's ``--out``) is held with :func:`locked_folder`, so a
+second process writing there is refused instead of overwriting the first one's records.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import fcntl
+import hashlib
 import io
 import json
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+LOCK_FILE = ".lock"
+"""The file in a folder that :func:`locked_folder` holds (it stays; the lock goes with the
+process that held it, however that process ends)."""
+
+_HELD: dict[Path, int] = {}  # folders this process holds, with how many holders nest
+
+
+class FolderInUse(ValueError):
+    """Another process holds the folder a run would write to."""
+
+
+@contextlib.contextmanager
+def locked_folder(folder: str | Path, option: str = "out") -> Iterator[Path]:
+    """Hold an exclusive lock on ``folder`` (created) for the ``with`` block: a second process
+    asking for it meanwhile gets :class:`FolderInUse` naming ``option`` and the holder's
+    process id, at once. Nested holds in one process share the lock."""
+    folder = Path(folder)
+    key = folder.resolve()
+    if key in _HELD:
+        _HELD[key] += 1
+        try:
+            yield folder
+        finally:
+            _HELD[key] -= 1
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handle = open(folder / LOCK_FILE, "a+")
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise ValueError(
+            f"{option} {str(folder)!r} cannot be locked for this run ({reason})"
+        ) from None
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            raise FolderInUse(
+                f"{option} {str(folder)!r} is in use by another run (process {holder}): wait "
+                "for it to finish or write to another folder"
+            ) from None
+        handle.truncate(0)
+        handle.write(f"{os.getpid()}\n")
+        handle.flush()
+        _HELD[key] = 1
+        try:
+            yield folder
+        finally:
+            del _HELD[key]
+    finally:
+        handle.close()  # releases the lock
+
+
+def _nearest_existing(option: str, path: Path) -> Path:
+    """The deepest existing folder on the way to ``path``; ``ValueError`` if it is a file."""
+    parent = path.absolute()
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} must lie in a directory, but {str(parent)!r} is a file")
+    return parent
+
+
+def writable_directory(option: str, path: Path, create: bool = True) -> Path:
+    """Check that files can be written in the folder ``path`` (``create``: create it and write
+    a probe file; else, writing nothing, check the permissions of its nearest existing folder):
+    ``ValueError`` naming ``option`` otherwise."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{option} must be a directory, got the file {str(path)!r}")
+    if not create:
+        if not os.access(_nearest_existing(option, path), os.W_OK | os.X_OK):
+            raise ValueError(f"{option} must be a writable directory, got {str(path)!r}")
+        return path
+    _nearest_existing(option, path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise ValueError(
+            f"{option} must be a writable directory, got {str(path)!r} ({reason})"
+        ) from None
+    return path
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """A new temporary file beside ``path`` (the one :func:`atomic_write` renames onto it)."""
+    return tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+
+
+def writable_file(option: str, path: str | Path) -> Path:
+    """Check that :func:`atomic_write` can write ``path``, by creating and removing the
+    temporary file it would write there (and the missing folders on the way, removed again):
+    ``ValueError`` naming ``option`` and the reason otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{option} must be a file path, got the directory {str(path)!r}")
+    missing = []
+    parent = path.absolute().parent
+    while not parent.exists():
+        missing.append(parent)
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} must lie in a directory, but {str(parent)!r} is a file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, tmp = _temporary(path)
+        os.close(handle)
+        os.unlink(tmp)
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise ValueError(
+            f"{option} must be a writable file path, got {str(path)!r} ({reason})"
+        ) from None
+    finally:
+        for folder in missing:  # deepest first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+    return path
 
 
 def atomic_write(
@@ -19,7 +150,7 @@ def atomic_write(
     """Call ``write(file)`` on a temporary file beside ``path``, then rename it onto ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    handle, tmp = _temporary(path)
     try:
         with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
             write(f)
@@ -62,6 +193,15 @@ def write_json(path: str | Path, data: Any) -> Path:
 
     text = json.dumps(json_safe(data), indent=2, default=default, allow_nan=False)
     return atomic_write(path, lambda f: f.write(text))
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 hex digest (64 characters) of the content of the file at ``path``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def read_json(path: str | Path) -> Any:

@@ -4,7 +4,8 @@ A mistake of the user's (an option's value, an input file that is not what it sh
 output that cannot be written) ends the job with one line, ``torchcontact JOB: error: ...``
 naming the option and what was expected, and exit code 2; a traceback means a bug.
 ``torchcontact --debug JOB ...`` (or ``--debug`` among the job's options) shows the traceback
-of such a mistake too.
+of such a mistake too. Ctrl-C ends a job with one line too (a sweep's says how many trials it
+kept for a rerun to resume from) and exit code 130.
 """
 
 from __future__ import annotations
@@ -13,8 +14,6 @@ import argparse
 import importlib
 import os
 import sys
-import tempfile
-from pathlib import Path
 
 JOBS = {
     "run": (
@@ -37,57 +36,20 @@ expected (its subclasses :class:`~torchcontact.learn.data.DataFormatError` and
 :class:`~torchcontact.checkpoint.CheckpointError` among them)."""
 
 
-def _nearest_existing(option: str, path: Path) -> Path:
-    """The deepest existing folder on the way to ``path``; ``ValueError`` if it is a file."""
-    parent = path.absolute()
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise ValueError(f"{option} must lie in a directory, but {str(parent)!r} is a file")
-    return parent
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose error is one line, the message and where the options are
+    listed (not argparse's usage block before it); exit code 2."""
 
-
-def writable_directory(option: str, path: Path, create: bool = True) -> Path:
-    """Check that files can be written in the folder ``path`` (``create``: create it and write
-    a probe file; else, writing nothing, check the permissions of its nearest existing folder):
-    ``ValueError`` naming ``option`` otherwise."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"{option} must be a directory, got the file {str(path)!r}")
-    if not create:
-        if not os.access(_nearest_existing(option, path), os.W_OK | os.X_OK):
-            raise ValueError(f"{option} must be a writable directory, got {str(path)!r}")
-        return path
-    _nearest_existing(option, path)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as error:
-        reason = error.strerror or type(error).__name__
-        raise ValueError(
-            f"{option} must be a writable directory, got {str(path)!r} ({reason})"
-        ) from None
-    return path
-
-
-def writable_file(option: str, path: Path) -> Path:
-    """Check, writing nothing, that the file ``path`` can be written (its missing folders
-    created): ``ValueError`` naming ``option`` otherwise."""
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"{option} must be a file path, got the directory {str(path)!r}")
-    parent = _nearest_existing(option, path.parent)
-    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"{option} must be a writable file path, got {str(path)!r}")
-    return path
+    def error(self, message: str):
+        message = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``torchcontact [--debug] JOB [options]``; ``torchcontact JOB --help`` lists
     options."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="torchcontact",
         description="Complementarity-free contact models: experiments and tools.",
         epilog="\n".join(f"  {name:14s} {about}" for name, (_, about) in JOBS.items()),
@@ -110,6 +72,11 @@ def main(argv: list[str] | None = None) -> int:
         message = " ".join(str(error).split())  # one line
         print(f"torchcontact {args.job}: error: {message}", file=sys.stderr)
         raise SystemExit(2) from None
+    except KeyboardInterrupt as interrupt:
+        if debug:
+            raise
+        print(f"torchcontact {args.job}: {interrupt or 'interrupted'}", file=sys.stderr)
+        raise SystemExit(130) from None
 
 
 if __name__ == "__main__":

@@ -49,7 +49,7 @@ from torchcontact.checkpoint import (
     constant_model,
     save_checkpoint,
 )
-from torchcontact.cli import writable_directory, writable_file
+from torchcontact.cli import Parser
 from torchcontact.cli.split_store import load_split, save_split, split_digest, split_path
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
@@ -70,7 +70,13 @@ from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.trials import file_sha256, library_versions
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend, parallel_map
-from torchcontact.results import atomic_write, write_csv, write_json
+from torchcontact.results import (
+    atomic_write,
+    writable_directory,
+    writable_file,
+    write_csv,
+    write_json,
+)
 from torchcontact.shipped import models_dir
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
@@ -109,7 +115,7 @@ WITHOUT_RESIDUAL = "learned_without_residual"
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="torchcontact learn-k",
         description="Learn the contact model K(q), D(q) and the system's factors from MuJoCo "
         "rollouts of many objects; judge it on held-out objects.",

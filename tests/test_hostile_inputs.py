@@ -1,0 +1,417 @@
+"""Hostile inputs of the second audit (issue 75), each answered by one clear line before any
+work, or handled as the user would expect: two runs into one folder, outputs that cannot be
+written, checkpoints of another environment, one-line command-line errors and Ctrl-C, the trial
+API's arguments, and records and datasets that know every file they were made from."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from torchcontact.checkpoint import CheckpointError, load_checkpoint
+from torchcontact.cli import main
+from torchcontact.environments import environment
+from torchcontact.environments.presets import MPCSettings
+from torchcontact.mpc.trials import (
+    TrialRecord,
+    TrialsInterrupted,
+    load_learned,
+    run_trials,
+    trial_configs,
+    trial_inputs,
+)
+from torchcontact.results import (
+    FolderInUse,
+    file_sha256,
+    locked_folder,
+    writable_file,
+    write_json,
+)
+from torchcontact.shipped import SHIPPED, check_shipped, resolve_learned, shipped_path
+
+ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+CLI = [sys.executable, "-c", "import sys, torchcontact.cli as c; sys.exit(c.main())"]
+FAST = trial_configs(
+    "fingertips", [("rotation", "cube")], range(1), MPCSettings(max_iter=2, compile=False),
+    max_steps=1,
+)  # fmt: skip
+RUN = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]
+RUN += ["--max-steps", "1", "--max-iter", "2", "--no-compile", "--no-progress"]
+UNWRITABLE = "/proc/no/such/place.json"
+"""A file path no one can write, not even root (for whom ``os.access`` says yes to anything)."""
+TOO_LONG = "x" * 250 + ".json"
+"""A file name the file system takes, but not with the temporary name it is written under."""
+
+
+def _refused(argv, capsys, job: str, option: str) -> str:
+    """Run ``argv``; check exit code 2 and one stderr line naming ``option``; return it."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"torchcontact {job}: error: {option}"), err
+    return lines[0]
+
+
+def _fake_record(folder: Path, config) -> Path:
+    """A record of ``config`` as a run would leave it (its outcome made up), where a run of
+    ``config`` into ``folder`` finds and reuses it."""
+    pose = [0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0]
+    record = TrialRecord(
+        config=config, success=False, steps=1, pos_err_mm=1.0, quat_err=0.1,
+        angle_err_deg=2.0, initial_pose=pose, target_pose=pose, aim_pose=pose, final_pose=pose,
+        fell=False, iterations=[2], contact_slots=4, contacts_found_mean=1.0,
+        contacts_found_max=1, steps_with_dropped_contacts=0, detect_ms=[1.0], solve_ms=[2.0],
+        sim_ms=[1.0], inputs=trial_inputs(config),
+    )  # fmt: skip
+    return write_json(folder / "trials" / f"{config.name}.json", record.to_dict())
+
+
+# --- 1. two runs into one --out ------------------------------------------------------------
+
+
+@pytest.fixture
+def held(tmp_path):
+    """``tmp_path / "out"`` held by another process (until the test ends)."""
+    out = tmp_path / "out"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from torchcontact.results import locked_folder\n"
+         f"with locked_folder({str(out)!r}):\n print('held', flush=True); sys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=ENV,
+    )  # fmt: skip
+    assert holder.stdout.readline().strip() == "held"
+    yield out, holder
+    holder.kill()
+    holder.wait()
+
+
+def test_a_run_into_a_folder_another_run_holds_is_refused_in_one_line(held, capsys):
+    out, holder = held
+    pid = holder.pid
+    last = _refused([*RUN, "--out", str(out)], capsys, "run", "--out")
+    assert f"is in use by another run (process {pid})" in last
+    assert not (out / "trials").exists() and not (out / "summary.json").exists()
+
+
+def test_run_trials_refuses_a_folder_another_process_holds_before_any_trial(held):
+    out, holder = held
+    expected = rf"^out '{out}' is in use by another run \(process {holder.pid}\)"
+    with pytest.raises(FolderInUse, match=expected):
+        run_trials(FAST, out=out, progress=False)
+    assert not list((out / "trials").glob("*.json"))
+
+
+def test_the_lock_goes_with_the_process_that_held_it(held):
+    out, holder = held
+    _fake_record(out, FAST[0])
+    with pytest.raises(FolderInUse):
+        run_trials(FAST, out=out, progress=False)
+    holder.kill()  # dies holding it
+    holder.wait()
+    (record,) = run_trials(FAST, out=out, progress=False)  # reused, not run
+    assert record.steps == 1 and record.pos_err_mm == 1.0
+
+
+def test_holds_in_one_process_nest(tmp_path):
+    with locked_folder(tmp_path, "--out"), locked_folder(tmp_path / ".", "out"):
+        pass
+    with locked_folder(tmp_path):  # released, taken again
+        pass
+
+
+def test_two_runs_started_together_into_one_out_never_overwrite_each_other(tmp_path):
+    """The issue's reproduction: the second run is refused (the folder is held, or its
+    records were made with other settings), and the first run's records stand."""
+    out = tmp_path / "out"
+    first = subprocess.Popen(
+        [*CLI, *RUN[:8], "--max-steps", "6", *RUN[10:], "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV,
+    )  # fmt: skip
+    for _ in range(600):
+        if (out / ".lock").is_file() and (out / ".lock").read_text().strip():
+            break
+        time.sleep(0.05)
+    second = subprocess.run(
+        [*CLI, *RUN[:8], "--max-steps", "7", *RUN[10:], "--out", str(out)],
+        capture_output=True, text=True, env=ENV, timeout=300,
+    )  # fmt: skip
+    assert first.wait(timeout=300) == 0, first.stderr.read()
+    assert second.returncode == 2 and "Traceback" not in second.stderr, second.stderr
+    assert len(second.stderr.strip().splitlines()) == 1
+    (record,) = (out / "trials").glob("*.json")
+    assert json.loads(record.read_text())["max_steps"] == 6
+
+
+# --- 5. output paths fail before the work ----------------------------------------------------
+
+
+@pytest.mark.parametrize("option", ["--json", "--figure"])
+@pytest.mark.parametrize("where", ["unwritable", "too long", "a directory"])
+def test_run_refuses_an_output_it_cannot_write_before_any_trial(tmp_path, capsys, option, where):
+    path = {"unwritable": UNWRITABLE, "too long": str(tmp_path / TOO_LONG), "a directory": "."}
+    out = tmp_path / "out"
+    _refused([*RUN, "--out", str(out), option, path[where]], capsys, "run", option)
+    assert not (out / "trials").exists()
+
+
+@pytest.mark.parametrize("name", ["summary.json", "trials.csv", "results.png"])
+def test_run_refuses_a_summary_file_that_is_a_directory_before_any_trial(tmp_path, capsys, name):
+    out = tmp_path / "out"
+    (out / name).mkdir(parents=True)
+    last = _refused([*RUN, "--out", str(out)], capsys, "run", f"--out's {name}")
+    assert "must be a file path, got the directory" in last
+    assert not (out / "trials").exists()
+
+
+@pytest.mark.parametrize("path", [UNWRITABLE, TOO_LONG, "."])
+def test_compare_refuses_a_json_it_cannot_write_before_reading_the_runs(tmp_path, capsys, path):
+    path = str(tmp_path / path) if path == TOO_LONG else path
+    _refused(["compare", "a", "b", "--json", path], capsys, "compare", "--json")
+
+
+@pytest.mark.parametrize("path", [UNWRITABLE, TOO_LONG])
+def test_learn_k_refuses_a_json_it_cannot_write_before_anything(tmp_path, capsys, path):
+    path = str(tmp_path / path) if path == TOO_LONG else path
+    out = tmp_path / "out"
+    argv = ["learn-k", "--trajectories", "3", "--steps", "12", "--no-progress", "--out", str(out)]
+    _refused([*argv, "--json", path], capsys, "learn-k", "--json")
+    assert not (out / "data").exists()
+
+
+@pytest.mark.parametrize("out", ["/proc/no/such/out", "a_file", "a_file/below"])
+def test_run_trials_refuses_an_out_it_cannot_write_before_any_trial(tmp_path, out):
+    (tmp_path / "a_file").write_text("")
+    out = out if out.startswith("/") else tmp_path / out
+    with pytest.raises(ValueError, match=r"^out "):
+        run_trials(FAST, out=out, progress=False)
+
+
+def test_the_write_probe_leaves_nothing_behind(tmp_path):
+    assert writable_file("--json", tmp_path / "a" / "b" / "c.json") == tmp_path / "a/b/c.json"
+    assert not list(tmp_path.iterdir())
+    (tmp_path / "kept.json").write_text("{}")
+    writable_file("--json", tmp_path / "kept.json")
+    assert [p.name for p in tmp_path.iterdir()] == ["kept.json"]
+
+
+# --- 9. one line means one line --------------------------------------------------------------
+
+PARSER_ERRORS = [
+    (["run", "fingertips", "--trials", "x"], "argument --trials: invalid int value"),
+    (["run", "fingertips", "--trials", "0"], "--trials must be >= 1"),
+    (["run", "fingertips", "--max-steps", "-3"], "--max-steps must be >= 1"),
+    (["run", "fingertips", "--no-such-option"], "unrecognized arguments: --no-such-option"),
+    (["run", "nowhere"], "argument env: invalid choice"),
+    (["run", "fingertips", "--preset", "quick"], "argument --preset: invalid choice"),
+    (["run", "fingertips", "--stiffness", "-1"], "--stiffness must be"),
+    (["run", "fingertips", "--first-seed", "-1"], "--first-seed must be >= 0"),
+    (["run", "fingertips", "--task", "fly"], "--task must be one of"),
+    (["run", "fingertips", "--object", "teapot"], "--object must be one of"),
+    (["run", "fingertips", "--tips", "a,b"], "--tips is for the custom environment"),
+    (["run", "custom"], "--robot is required"),
+    (["run", "fingertips", "--model", "relaxed_qp", "--stiffness", "3"], "--stiffness is for"),
+    (["run", "fingertips", "--balance", "-1"], "--balance must be"),
+    (["run", "fingertips", "--workers", "0"], "--workers must be >= 1"),
+    (["run", "fingertips", "--object-size", "0.1"], "--object-size/-scale/-mass/-friction"),
+    (["compare"], "the following arguments are required: a, b"),
+    (["learn-k", "--lr", "-1"], "--lr"),
+    (["learn-k", "--scene", "moon"], "argument --scene: invalid choice"),
+    (["learn-k", "--trajectories", "x"], "argument --trajectories: invalid int value"),
+]
+
+
+@pytest.mark.parametrize("argv, message", PARSER_ERRORS)
+def test_a_command_line_error_is_one_line_and_points_to_help(capsys, argv, message):
+    job = argv[0]
+    last = _refused(argv, capsys, job, "")
+    assert message in last and last.endswith(f"(see torchcontact {job} --help)")
+    assert "usage:" not in last
+
+
+def test_an_unknown_job_is_one_line_too(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fly"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1 and "invalid choice: 'fly'" in err[0]
+
+
+def test_ctrl_c_in_run_trials_counts_the_records_kept(tmp_path):
+    configs = trial_configs(
+        "fingertips", [("rotation", "cube")], range(3), MPCSettings(compile=False), max_steps=1
+    )
+    for config in configs[:2]:
+        _fake_record(tmp_path, config)
+
+    def interrupt(record, reused):
+        if record.config.seed == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(TrialsInterrupted, match=r"^interrupted; 2 trials kept, rerun to resume$"):
+        run_trials(configs, out=tmp_path, progress=False, on_record=interrupt)
+
+
+def test_ctrl_c_ends_a_run_with_one_line(tmp_path):
+    out = tmp_path / "out"
+    argv = [*CLI, *RUN[:7], "20", *RUN[8:], "--out", str(out)]
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV)
+    for _ in range(1200):
+        if list((out / "trials").glob("*.json")) or process.poll() is not None:
+            break
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    err = err.decode()
+    kept = len(list((out / "trials").glob("*.json")))
+    assert process.returncode == 130, err
+    assert err.strip().splitlines()[-1] == (
+        f"torchcontact run: interrupted; {kept} trials kept, rerun to resume"
+    ), err
+    assert "Traceback" not in err and 1 <= kept < 20
+
+
+# --- 4. checkpoints checked for what they are ---------------------------------------------
+
+SHIPPED_TRIFINGER = Path(shipped_path("trifinger"))
+
+
+@pytest.mark.parametrize("env", ["fingertips", "allegro"])
+def test_a_checkpoint_of_another_environment_is_refused_in_one_line(tmp_path, capsys, env):
+    argv = ["run", env, "--trials", "1", "--max-steps", "1", "--no-compile", "--no-progress"]
+    argv += ["--out", str(tmp_path / "out"), "--learned", str(SHIPPED_TRIFINGER)]
+    last = _refused(argv, capsys, "run", "--learned")
+    assert f"a checkpoint learned in the 'trifinger' environment, not '{env}'" in last
+    assert not (tmp_path / "out" / "trials").exists()
+    with pytest.raises(CheckpointError, match="learned in the 'trifinger' environment"):
+        load_learned(str(SHIPPED_TRIFINGER), env)
+
+
+def test_a_checkpoint_of_another_state_layout_is_refused(tmp_path, capsys):
+    payload = torch.load(SHIPPED_TRIFINGER, weights_only=True)
+    payload["meta"]["scene"] = "fingertips"  # named right, learned on the TriFinger's states
+    torch.save(payload, tmp_path / "relabelled.pt")
+    argv = [*RUN, "--out", str(tmp_path / "out"), "--learned", str(tmp_path / "relabelled.pt")]
+    last = _refused(argv, capsys, "run", "--learned")
+    assert "learned on states of joints free + 9 hinge, but this scene's are free + 9 slide" in last
+
+
+SHORT_FILES = ["e", "hello", "", "x\n", "PK", "\x80\x02", "{}", "version: 1\n", "\x00" * 7]
+
+
+@pytest.mark.parametrize("text", SHORT_FILES)
+def test_a_short_text_file_as_learned_is_refused_in_one_line(tmp_path, capsys, text):
+    path = tmp_path / "model.pt"
+    path.write_text(text)
+    with pytest.raises(CheckpointError, match=rf"^{path}: (not a|a damaged)"):
+        load_checkpoint(path)
+    argv = [*RUN, "--out", str(tmp_path / "out"), "--learned", str(path)]
+    last = _refused(argv, capsys, "run", f"--learned: {path}: ")
+    assert "checkpoint" in last
+
+
+def test_the_shipped_model_is_compared_with_its_manifest(tmp_path):
+    assert resolve_learned(SHIPPED, "trifinger") == str(SHIPPED_TRIFINGER)
+    copy = tmp_path / "trifinger.pt"
+    copy.write_bytes(SHIPPED_TRIFINGER.read_bytes())
+    manifest = SHIPPED_TRIFINGER.with_suffix(".json").read_text()
+    copy.with_suffix(".json").write_text(manifest)
+    assert check_shipped(copy) == copy
+    payload = torch.load(copy, weights_only=True)
+    payload["state_dict"] = {k: v + 1e-3 for k, v in payload["state_dict"].items()}
+    torch.save(payload, copy)  # retrained in place, the manifest left as it was
+    digest = file_sha256(copy)
+    message = rf"^shipped model {copy}: its SHA-256 {digest[:12]}… differs from its manifest's"
+    with pytest.raises(ValueError, match=message):
+        check_shipped(copy)
+    copy.with_suffix(".json").unlink()
+    with pytest.raises(ValueError, match="its manifest trifinger.json records no SHA-256"):
+        check_shipped(copy)
+
+
+# --- 6. the trial API checks its arguments ---------------------------------------------------
+
+TRIAL_API_ERRORS = [
+    (("trifinger", [("fly", "cube")]), {}, r"^pairs: task must be one of \("),
+    (("fingertips", [("rotation", "teapot")]), {}, r"^pairs: object of task 'rotation' must be"),
+    (("fingertips", [("rotation", "random-3")]), {}, r"^pairs: object of task 'rotation'"),
+    (("fingertips", ["rotation"]), {}, r"^pairs must hold \(task, object\) pairs"),
+    (("fingertips", [("rotation", "cube")]), {"max_steps": 0}, r"^max_steps must be a positive"),
+    (("fingertips", [("rotation", "cube")]), {"max_steps": 2.5}, r"^max_steps must be a positive"),
+    (("fingertips", [("rotation", "cube")]), {"stiffness": -1}, r"^stiffness must be a positive"),
+    (("fingertips", [("rotation", "cube")]), {"stiffness": "3"}, r"^stiffness must be a positive"),
+    (("fingertips", [("rotation", "cube")]), {"stiffness": math.nan}, r"^stiffness must be"),
+    (("fingertips", [("rotation", "cube")]), {"relaxation": 0.0}, r"^relaxation must be"),
+    (("fingertips", [("rotation", "cube")]), {"model": "qp2"}, r"^model must be one of"),
+    (("fingertips", [("rotation", "cube")]), {"settings": 3}, r"^settings must be MPCSettings"),
+    (("fingertips", [("rotation", "cube")]), {"settings": "quick"}, r"^preset must be one of"),
+    (("fingertips", [("rotation", "cube")]), {"seeds": [-1]}, r"^seeds must be non-negative"),
+    (("fingertips", [("rotation", "cube")]), {"seeds": [0.5]}, r"^seeds must be non-negative"),
+    (("fingertips", [("rotation", "cube")]), {"stifness": 3}, r"^options must be fields of Tri"),
+    (("nowhere", [("rotation", "cube")]), {}, r"^env must be one of"),
+]
+
+
+@pytest.mark.parametrize("args, options, message", TRIAL_API_ERRORS)
+def test_trial_configs_checks_its_arguments_as_the_command_line_does(args, options, message):
+    seeds = options.pop("seeds", [0])
+    with pytest.raises(ValueError, match=message):
+        trial_configs(*args, seeds, **options)
+
+
+def test_trial_configs_takes_a_presets_name_as_from_env_does():
+    (config,) = trial_configs("fingertips", [("rotation", "cube")], [0], settings="fast")
+    assert config.settings == environment("fingertips").preset("fast")
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("compile", "no", "compile must be True or False, got 'no'"),
+        ("compile", 1, "compile must be True or False, got 1"),
+        ("max_iter", True, "max_iter must be a positive integer, got True"),
+        ("horizon", 0, "horizon must be a positive integer, got 0"),
+        ("dtype", "float16", "dtype must be 'float32' or 'float64'"),
+    ],
+)
+def test_mpc_settings_refuse_values_of_the_wrong_type(field, value, message):
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}"):
+        MPCSettings(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "configs, message",
+    [
+        ([dataclasses.replace(FAST[0], max_steps=0)], "max_steps must be a positive integer"),
+        (["fingertips_rotation_cube_seed0"], "configs must be TrialConfig, got str"),
+    ],
+)
+def test_run_trials_refuses_configs_it_cannot_run(tmp_path, configs, message):
+    with pytest.raises(ValueError, match=f"^{message}"):
+        run_trials(configs, out=tmp_path, progress=False)
+    assert not (tmp_path / "trials").exists()
+
+
+@pytest.mark.parametrize(
+    "where, message",
+    [
+        ({"workers": 0}, "workers must be a positive integer"),
+        ({"backend": "threads"}, "backend must be one of"),
+        ({"address": "127.0.0.1:1"}, "address is for backend='ray'"),
+    ],
+)
+def test_run_trials_checks_where_it_runs_before_writing(tmp_path, where, message):
+    with pytest.raises(ValueError, match=f"^{message}"):
+        run_trials(FAST, out=tmp_path, progress=False, **where)
+    assert not (tmp_path / "trials").exists()
