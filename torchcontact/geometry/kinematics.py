@@ -1,0 +1,202 @@
+"""Bodies' world poses and point Jacobians from MuJoCo-style joints, in pure torch.
+
+The same composition as MuJoCo's ``mj_kinematics``: a body sits at its offset from its parent,
+then its joints move it in order (a slide along its axis, a hinge about its axis through its
+anchor, both by ``q − qpos0``; a ball by its quaternion; a free joint sets the pose outright).
+Point Jacobians follow MuJoCo's velocity convention, as ``mj_jac``: a free joint's v is the
+origin's linear velocity in the world frame, then the angular velocity in the body frame; a
+ball's is the angular velocity in the body frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from torchcontact.rotations import quaternion_exp, quaternion_multiply, quaternion_to_matrix
+from torchcontact.validation import check_shape
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint of a :class:`BodyTree`, as MuJoCo describes it.
+
+    Attributes:
+        body: index of the body it moves.
+        kind: ``"free"``, ``"ball"``, ``"slide"`` or ``"hinge"``.
+        axis: ``(3,)`` unit axis in the body frame (slide and hinge).
+        anchor: ``(3,)`` [m] the joint's position in the body frame (hinge and ball).
+        qpos: address of its first coordinate in q; dof: of its first velocity in v.
+        reference: q at which a slide or hinge leaves the body at its offset (``qpos0``).
+    """
+
+    body: int
+    kind: str
+    axis: tuple[float, float, float]
+    anchor: tuple[float, float, float]
+    qpos: int
+    dof: int
+    reference: float = 0.0
+
+
+_DOFS = {"free": 6, "ball": 3, "slide": 1, "hinge": 1}
+
+
+class BodyTree(torch.nn.Module):
+    """A tree of rigid bodies moved by joints: batched poses and point Jacobians of q.
+
+    Body 0 is the world. Call with ``q (..., nq)``; returns ``position (..., nbody, 3)`` [m]
+    and ``rotation (..., nbody, 3, 3)`` (body frame to world) of every body. Differentiable
+    and free of Python branches on values, so it traces under ``torch.compile``;
+    ``.to(dtype, device)`` moves its constants.
+
+    Args:
+        parent: ``(nbody,)`` each body's parent index (smaller than its own; the world's is 0).
+        offset_position: ``(nbody, 3)`` [m] each body's position in its parent's frame.
+        offset_quaternion: ``(nbody, 4)`` (w, x, y, z) its orientation in its parent's frame.
+        joints: the joints, in q's order (a body's joints in the order MuJoCo applies them).
+        nq, nv: sizes of q and v.
+    """
+
+    def __init__(
+        self,
+        parent: Sequence[int],
+        offset_position: torch.Tensor,
+        offset_quaternion: torch.Tensor,
+        joints: Sequence[Joint],
+        nq: int,
+        nv: int,
+    ):
+        super().__init__()
+        nbody = len(parent)
+        if any(not 0 <= p < max(b, 1) for b, p in enumerate(parent)):
+            raise ValueError(f"parent must list each body's parent, a smaller index, got {parent}")
+        check_shape(
+            "offset_position", offset_position, f"({nbody}, 3)", offset_position.shape == (nbody, 3)
+        )
+        check_shape(
+            "offset_quaternion",
+            offset_quaternion,
+            f"({nbody}, 4)",
+            offset_quaternion.shape == (nbody, 4),
+        )
+        unknown = [j.kind for j in joints if j.kind not in _DOFS]
+        if unknown:
+            raise ValueError(f"joints must be among {sorted(_DOFS)}, got {unknown}")
+        self.parent = tuple(int(p) for p in parent)
+        self.joints = tuple(joints)
+        self.nq, self.nv = int(nq), int(nv)
+        self.register_buffer("offset_position", offset_position.clone())
+        self.register_buffer("offset_quaternion", offset_quaternion.clone())
+        axes = offset_position.new_tensor([j.axis for j in joints]).reshape(-1, 3)
+        self.register_buffer("joint_axis", axes)
+        anchors = offset_position.new_tensor([j.anchor for j in joints]).reshape(-1, 3)
+        self.register_buffer("joint_anchor", anchors)
+        # which dofs move each body: its own joints' and its ancestors'
+        moves = torch.zeros(nbody, nv, dtype=torch.bool)
+        for body in range(1, nbody):
+            moves[body] = moves[self.parent[body]]
+            for joint in joints:
+                if joint.body == body:
+                    moves[body, joint.dof : joint.dof + _DOFS[joint.kind]] = True
+        self.register_buffer("moves", moves)
+        rotational = torch.zeros(nv, dtype=torch.bool)
+        for joint in joints:
+            if joint.kind == "free":
+                rotational[joint.dof + 3 : joint.dof + 6] = True
+            elif joint.kind in ("ball", "hinge"):
+                rotational[joint.dof : joint.dof + _DOFS[joint.kind]] = True
+        self.register_buffer("rotational", rotational)
+        self._by_body = [[i for i, j in enumerate(joints) if j.body == b] for b in range(nbody)]
+
+    @property
+    def nbody(self) -> int:
+        return len(self.parent)
+
+    def forward(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """World ``position (..., nbody, 3)`` [m] and ``rotation (..., nbody, 3, 3)``."""
+        poses, _ = self._poses(q)
+        return poses
+
+    def _poses(self, q: torch.Tensor):
+        """The bodies' poses and, per dof, its world axis ``(..., nv, 3)`` and anchor."""
+        check_shape("q", q, f"(..., {self.nq})", q.dim() >= 1 and q.shape[-1] == self.nq)
+        batch = q.shape[:-1]
+        identity = q.new_tensor([1.0, 0.0, 0.0, 0.0]).expand(*batch, 4)
+        positions = [q.new_zeros(*batch, 3)]
+        quaternions = [identity]
+        rotations = [quaternion_to_matrix(identity)]
+        axes: list[torch.Tensor | None] = [None] * self.nv
+        anchors: list[torch.Tensor | None] = [None] * self.nv
+        for body in range(1, self.nbody):
+            up = self.parent[body]
+            position = positions[up] + _apply(rotations[up], self.offset_position[body])
+            quaternion = quaternion_multiply(quaternions[up], self.offset_quaternion[body])
+            rotation = quaternion_to_matrix(quaternion)
+            for index in self._by_body[body]:
+                joint = self.joints[index]
+                axis, anchor_local = self.joint_axis[index], self.joint_anchor[index]
+                if joint.kind == "free":
+                    position = q[..., joint.qpos : joint.qpos + 3]
+                    quaternion = _normalized(q[..., joint.qpos + 3 : joint.qpos + 7])
+                    rotation = quaternion_to_matrix(quaternion)
+                    for k in range(3):
+                        axes[joint.dof + k] = q.new_tensor(
+                            [0.0] * k + [1.0] + [0.0] * (2 - k)
+                        ).expand(*batch, 3)
+                        anchors[joint.dof + k] = position
+                    for k in range(3):
+                        axes[joint.dof + 3 + k] = rotation[..., :, k]
+                        anchors[joint.dof + 3 + k] = position
+                    continue
+                anchor = position + _apply(rotation, anchor_local)
+                if joint.kind == "slide":
+                    world_axis = _apply(rotation, axis)
+                    position = position + world_axis * (q[..., joint.qpos, None] - joint.reference)
+                    axes[joint.dof], anchors[joint.dof] = world_axis, anchor
+                    continue
+                if joint.kind == "hinge":
+                    world_axis = _apply(rotation, axis)
+                    turn = quaternion_exp(axis * (q[..., joint.qpos, None] - joint.reference))
+                    axes[joint.dof], anchors[joint.dof] = world_axis, anchor
+                else:  # ball
+                    turn = _normalized(q[..., joint.qpos : joint.qpos + 4])
+                quaternion = quaternion_multiply(quaternion, turn)
+                rotation = quaternion_to_matrix(quaternion)
+                if joint.kind == "ball":
+                    for k in range(3):
+                        axes[joint.dof + k], anchors[joint.dof + k] = rotation[..., :, k], anchor
+                # the anchor stays where it is while the body turns about it
+                position = anchor - _apply(rotation, anchor_local)
+            positions.append(position)
+            quaternions.append(quaternion)
+            rotations.append(rotation)
+        poses = (torch.stack(positions, -2), torch.stack(rotations, -3))
+        if self.nv == 0:
+            empty = q.new_zeros(*batch, 0, 3)
+            return poses, (empty, empty)
+        return poses, (torch.stack(axes, -2), torch.stack(anchors, -2))
+
+    def point_jacobian(self, dofs, bodies: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+        """``(..., n, 3, nv)`` Jacobians of world ``points (..., n, 3)`` fixed to ``bodies (n,)``.
+
+        ``dofs`` is the second value of :meth:`_poses` (the dofs' world axes and anchors):
+        ``J v`` is the points' velocity [m/s] under the generalized velocity ``v``.
+        """
+        axes, anchors = dofs  # (..., nv, 3)
+        lever = points.unsqueeze(-2) - anchors.unsqueeze(-3)  # (..., n, nv, 3)
+        axes = axes.unsqueeze(-3).expand_as(lever)
+        columns = torch.where(self.rotational[:, None], torch.linalg.cross(axes, lever), axes)
+        columns = columns * self.moves[bodies].unsqueeze(-1).to(columns.dtype)
+        return columns.transpose(-1, -2)
+
+
+def _apply(rotation: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
+    """``rotation @ vector`` for ``rotation (..., 3, 3)`` and ``vector (..., 3)``."""
+    return (rotation @ vector.unsqueeze(-1)).squeeze(-1)
+
+
+def _normalized(quaternion: torch.Tensor) -> torch.Tensor:
+    return quaternion / torch.linalg.vector_norm(quaternion, dim=-1, keepdim=True)

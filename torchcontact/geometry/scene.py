@@ -1,0 +1,377 @@
+"""A scene's contact geometry: shapes on bodies, the pairs it models, ``Contacts`` at any q.
+
+The pipeline of :meth:`SceneGeometry.forward`, one stage a line: the bodies' poses from q
+(:class:`~torchcontact.geometry.kinematics.BodyTree`); every pair's signed distance and its
+patch points (:mod:`~torchcontact.geometry.distance`); per pair up to ``per_pair`` points that
+span the patch; the ``slots`` deepest of them all; their rows from the bodies' point
+Jacobians. Pure torch: batched over q's leading dimensions, on q's device and dtype.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from torchcontact.contacts import PAD_DISTANCE, Contacts
+from torchcontact.geometry.distance import Core, core_separation, points_to_solid, safe_norm
+from torchcontact.geometry.kinematics import BodyTree
+from torchcontact.geometry.shapes import Shape, as_tensor
+
+SPREAD = 1e-3
+"""[m] A patch point this close to one already kept adds no support and is skipped."""
+
+
+@dataclass(frozen=True)
+class Pair:
+    """A modelled pair: shape ``a`` (on a body whose contacts are modelled) and shape ``b``.
+
+    Attributes:
+        a, b: indices into the scene's shapes; ``b`` may be a plane, ``a`` may not.
+        mu: the friction coefficient of its rows.
+    """
+
+    a: int
+    b: int
+    mu: float
+
+
+class SceneGeometry(torch.nn.Module):
+    """Contacts of a scene as a differentiable function of q.
+
+    Call with ``q (..., nq)``; returns :class:`~torchcontact.contacts.Contacts` of batch shape
+    ``...`` with ``slots`` slots: φ [m] (MuJoCo's ``dist``, negative in penetration), Jⁿ and
+    Jᵗ over the tree's nv velocities (``Jⁿ v > 0`` opens the gap), μ, the frame (rows n, t₁,
+    t₂; n from shape a towards b), the position (midway between the two surfaces) and
+    ``static`` (the other body is welded to the world). A contact is active when φ < ``margin``.
+
+    Where the answer switches (documented, as MuJoCo's detection switches too): the witness
+    feature of a pair changes where two features are equally near (φ is continuous there, its
+    gradient jumps; ``smoothing`` blends them); a patch point is kept or not as it crosses
+    ``margin`` or :data:`SPREAD`; beyond ``slots`` active points, the deepest ``slots`` are kept
+    (a point leaving the budget takes its force with it). The tangent directions t₁, t₂ are
+    the normal's cross products with the world axis least aligned with it.
+
+    Args:
+        tree: the bodies' kinematics.
+        shapes: every shape; ``bodies[i]`` the body shape ``i`` is fixed to.
+        pairs: the modelled pairs.
+        slots: contact slots nc of the output.
+        margin: detection distance [m].
+        per_pair: at most this many points per pair, spanning its patch.
+        smoothing: None (hard feature choice) or a length [m] for softmin feature blending
+            (see :mod:`~torchcontact.geometry.distance`).
+    """
+
+    def __init__(
+        self,
+        tree: BodyTree,
+        shapes: Sequence[Shape],
+        bodies: Sequence[int],
+        pairs: Sequence[Pair],
+        slots: int,
+        margin: float = 0.0,
+        per_pair: int = 4,
+        smoothing: float | None = None,
+    ):
+        super().__init__()
+        if len(bodies) != len(shapes):
+            raise ValueError(
+                f"bodies must name one body per shape ({len(shapes)}), got {len(bodies)}"
+            )
+        if isinstance(slots, bool) or not isinstance(slots, int) or slots < 1:
+            raise ValueError(f"slots must be a positive integer, got {slots!r}")
+        if isinstance(per_pair, bool) or not isinstance(per_pair, int) or per_pair < 1:
+            raise ValueError(f"per_pair must be a positive integer, got {per_pair!r}")
+        if not (np.isfinite(margin) and margin >= 0):
+            raise ValueError(f"margin must be a non-negative finite number, got {margin!r}")
+        if smoothing is not None and not (np.isfinite(smoothing) and smoothing > 0):
+            raise ValueError(f"smoothing must be None or a positive length, got {smoothing!r}")
+        if not pairs:
+            raise ValueError("pairs must hold at least one pair of shapes")
+        for pair in pairs:
+            if shapes[pair.a].kind == "plane":
+                raise ValueError(f"pairs: shape a of {pair} must not be a plane")
+        self.tree = tree
+        self.shapes, self.bodies, self.pairs = tuple(shapes), tuple(bodies), tuple(pairs)
+        self.slots, self.margin, self.per_pair = slots, float(margin), per_pair
+        self.smoothing = smoothing
+        dtype = tree.offset_position.dtype
+        welded = ~tree.moves.any(-1)
+        groups: dict[tuple[str, str], list[Pair]] = {}
+        for pair in pairs:
+            groups.setdefault((shapes[pair.a].kind, shapes[pair.b].kind), []).append(pair)
+        ordered = [pair for members in groups.values() for pair in members]
+        self.order = [ordered.index(pair) for pair in pairs]
+        self.groups = torch.nn.ModuleList(
+            _Group(kinds, members, shapes, bodies, welded, dtype)
+            for kinds, members in groups.items()
+        )
+
+    def distances(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every pair's signed distance ``(..., n_pairs)`` [m] and unit normal from shape a
+        towards b ``(..., n_pairs, 3)``, in :attr:`pairs`' order (no slot budget, no margin)."""
+        (position, rotation), _ = self.tree._poses(q)
+        found = [
+            group.patch(position, rotation, self.margin, self.smoothing) for group in self.groups
+        ]
+        phi = torch.cat([f["phi"].amin(-1) for f in found], -1)
+        first = torch.cat(
+            [f["normal"].gather(-2, _deepest_index(f["phi"])).squeeze(-2) for f in found], -2
+        )
+        return phi[..., self.order], first[..., self.order, :]
+
+    def forward(self, q: torch.Tensor) -> Contacts:
+        (position, rotation), dofs = self.tree._poses(q)
+        found = [
+            group.patch(position, rotation, self.margin, self.smoothing) for group in self.groups
+        ]
+        kept = [_spanning(points, self.per_pair) for points in found]
+        points = {
+            key: torch.cat([k[key] for k in kept], -1 if key in _SCALARS else -2) for key in kept[0]
+        }
+        chosen = _deepest(points, self.slots)
+        return self._contacts(chosen, dofs)
+
+    def _contacts(self, points: dict[str, torch.Tensor], dofs) -> Contacts:
+        active = points["active"]
+        normal = points["normal"]
+        frame = _frame(normal)
+        position = points["position"]
+        jac_b = self.tree.point_jacobian(dofs, points["body_b"], position)
+        jac_a = self.tree.point_jacobian(dofs, points["body_a"], position)
+        rows = frame @ (jac_b - jac_a)  # (..., nc, 3, nv)
+        mask = active.unsqueeze(-1).to(rows.dtype)
+        rows = rows * mask.unsqueeze(-1)
+        eye = torch.eye(3, dtype=frame.dtype, device=frame.device)
+        return Contacts._unchecked(
+            {
+                "phi": torch.where(active, points["phi"], PAD_DISTANCE),
+                "jac_normal": rows[..., 0, :],
+                "jac_tangent": rows[..., 1:, :],
+                "mu": torch.where(active, points["mu"], 0.0),
+                "active": active,
+                "frame": torch.where(active[..., None, None], frame, eye),
+                "position": position * mask,
+                "static": points["static"] & active,
+            }
+        )
+
+    def extra_repr(self) -> str:
+        return (
+            f"shapes={len(self.shapes)}, pairs={len(self.pairs)}, slots={self.slots}, "
+            f"margin={self.margin}, per_pair={self.per_pair}, smoothing={self.smoothing}"
+        )
+
+
+_SCALARS = ("phi", "mu", "active", "static", "body_a", "body_b")
+"""The per-point fields without a trailing (3,) dimension."""
+
+
+class _Group(torch.nn.Module):
+    """The pairs of one kind of shape a against one kind of shape b, padded to one size."""
+
+    def __init__(self, kinds, pairs, shapes, bodies, welded, dtype):
+        super().__init__()
+        self.kind_a, self.kind_b = kinds
+        a = [shapes[p.a] for p in pairs]
+        b = [shapes[p.b] for p in pairs]
+        self.register_buffer("body_a", torch.tensor([bodies[p.a] for p in pairs]))
+        self.register_buffer("body_b", torch.tensor([bodies[p.b] for p in pairs]))
+        self.register_buffer("mu", torch.tensor([p.mu for p in pairs], dtype=dtype))
+        static = [bool(welded[bodies[p.a]] or welded[bodies[p.b]]) for p in pairs]
+        self.register_buffer("static", torch.tensor(static))
+        self.register_buffer(
+            "radius",
+            torch.tensor([s.radius + t.radius for s, t in zip(a, b, strict=True)], dtype=dtype),
+        )
+        self.register_buffer("radius_a", torch.tensor([s.radius for s in a], dtype=dtype))
+        self.core_a = _CoreConstants(a, dtype)
+        self.core_b = _CoreConstants(b, dtype)
+
+    def patch(self, position, rotation, margin: float, smoothing) -> dict[str, torch.Tensor]:
+        """Candidate points ``(..., P, C)`` of every pair: the pair's own witness first, then
+        each vertex of either core against the other's solid (or a plane)."""
+        a = self.core_a.world(position, rotation, self.body_a)
+        if self.kind_b == "plane":
+            normal, offset = self.core_b.plane(position, rotation, self.body_b)
+            height = (a.vertices * normal.unsqueeze(-2)).sum(-1) - offset.unsqueeze(-1)
+            phi = height - self.radius_a.unsqueeze(-1)
+            towards = (-normal).unsqueeze(-2).expand_as(a.vertices)
+            point = a.vertices + towards * (self.radius_a[:, None] + 0.5 * phi).unsqueeze(-1)
+            # the deepest vertex first: the pair's own point, where its patch starts
+            first = phi.argmin(-1, keepdim=True)
+            phi = torch.cat([phi.gather(-1, first), phi], -1)
+            point = torch.cat(
+                [point.gather(-2, first.unsqueeze(-1).expand(*first.shape, 3)), point], -2
+            )
+            towards = torch.cat([towards[..., :1, :], towards], -2)
+            return self._points(phi, point, towards, margin)
+        b = self.core_b.world(position, rotation, self.body_b)
+        main = core_separation(a, b, smoothing)
+        phi = [main.distance.unsqueeze(-1)]
+        normal = [main.normal.unsqueeze(-2)]
+        surface_a = [main.point_a.unsqueeze(-2)]
+        surface_b = [main.point_b.unsqueeze(-2)]
+        if b.solid:
+            distance, surface, outward = points_to_solid(a.vertices, b, smoothing)
+            phi.append(distance)
+            normal.append(-outward)
+            surface_a.append(a.vertices)
+            surface_b.append(surface)
+        if a.solid:
+            distance, surface, outward = points_to_solid(b.vertices, a, smoothing)
+            phi.append(distance)
+            normal.append(outward)
+            surface_a.append(surface)
+            surface_b.append(b.vertices)
+        normal = torch.cat(normal, -2)
+        phi = torch.cat(phi, -1) - self.radius.unsqueeze(-1)
+        ra = self.radius_a[:, None, None]
+        rb = (self.radius - self.radius_a)[:, None, None]
+        point = 0.5 * (
+            torch.cat(surface_a, -2) + ra * normal + torch.cat(surface_b, -2) - rb * normal
+        )
+        return self._points(phi, point, normal, margin)
+
+    def _points(self, phi, point, normal, margin: float) -> dict[str, torch.Tensor]:
+        shape = phi.shape
+        return {
+            "phi": phi,
+            "position": point,
+            "normal": normal,
+            "active": phi < margin,
+            "mu": self.mu.unsqueeze(-1).expand(shape),
+            "static": self.static.unsqueeze(-1).expand(shape),
+            "body_a": self.body_a.unsqueeze(-1).expand(shape),
+            "body_b": self.body_b.unsqueeze(-1).expand(shape),
+        }
+
+
+class _CoreConstants(torch.nn.Module):
+    """Body-frame cores of one kind, padded to a common count by repeating an entry (a
+    repeated vertex, triangle or edge changes no least or greatest)."""
+
+    def __init__(self, shapes: Sequence[Shape], dtype):
+        super().__init__()
+        self.kind = shapes[0].kind
+        if self.kind == "plane":
+            self.register_buffer("normal", as_tensor(np.stack([s.normal for s in shapes]), dtype))
+            self.register_buffer("offset", torch.tensor([s.offset for s in shapes], dtype=dtype))
+            return
+        self.register_buffer("vertices", _padded([s.vertices for s in shapes], dtype))
+        self.register_buffer("edges", _padded([s.vertices[s.edges()] for s in shapes], dtype))
+        if self.kind != "point":
+            self.register_buffer("directions", _padded([s.directions() for s in shapes], dtype))
+        if self.kind == "polytope":
+            planes = [s.planes() for s in shapes]
+            self.register_buffer(
+                "corners", _padded([s.vertices[s.triangles] for s in shapes], dtype)
+            )
+            self.register_buffer("normals", _padded([n for n, _ in planes], dtype))
+            self.register_buffer("offsets", _padded([d for _, d in planes], dtype))
+
+    def world(self, position, rotation, bodies) -> Core:
+        """The cores in the world frame at the bodies' ``position (..., nbody, 3)`` and
+        ``rotation (..., nbody, 3, 3)``."""
+        x, r = position[..., bodies, :], rotation[..., bodies, :, :]  # (..., P, 3), (..., P, 3, 3)
+
+        def move(points):  # (P, N, ..., 3) body frame → world
+            extra = points.dim() - 3
+            rr = r.reshape(*r.shape[:-2], *([1] * (extra + 1)), 3, 3)
+            xx = x.reshape(*x.shape[:-1], *([1] * (extra + 1)), 3)
+            return (rr @ points.unsqueeze(-1)).squeeze(-1) + xx
+
+        vertices, edges = move(self.vertices), move(self.edges)
+        if self.kind == "point":
+            return Core(vertices, edges=edges)
+        rr = r.unsqueeze(-3)
+        directions = (rr @ self.directions.unsqueeze(-1)).squeeze(-1)
+        if self.kind == "segment":
+            return Core(vertices, edges=edges, directions=directions)
+        normals = (rr @ self.normals.unsqueeze(-1)).squeeze(-1)
+        offsets = self.offsets + (normals * x.unsqueeze(-2)).sum(-1)
+        return Core(vertices, move(self.corners), normals, offsets, edges, directions)
+
+    def plane(self, position, rotation, bodies):
+        """World outward normals ``(..., P, 3)`` and offsets ``(..., P)`` of planes."""
+        x, r = position[..., bodies, :], rotation[..., bodies, :, :]
+        normal = (r @ self.normal.unsqueeze(-1)).squeeze(-1)
+        return normal, self.offset + (normal * x).sum(-1)
+
+
+def _deepest_index(phi: torch.Tensor) -> torch.Tensor:
+    """``(..., P, 1, 3)`` index of each pair's least φ, to gather its normal."""
+    index = phi.argmin(-1, keepdim=True).unsqueeze(-1)
+    return index.expand(*index.shape[:-1], 3)
+
+
+def _padded(arrays: Sequence[np.ndarray], dtype) -> torch.Tensor:
+    """``(P, N, ...)`` from arrays of ``(N_i, ...)``, each padded with its first entry."""
+    count = max(len(a) for a in arrays)
+    rows = [np.concatenate([a, np.repeat(a[:1], count - len(a), 0)]) for a in arrays]
+    return as_tensor(np.stack(rows), dtype)
+
+
+def _spanning(points: dict[str, torch.Tensor], per_pair: int) -> dict[str, torch.Tensor]:
+    """Per pair, up to ``per_pair`` of its candidates ``(..., P, C)``: the first (the pair's
+    nearest), then each time the active candidate farthest from those kept, if farther than
+    :data:`SPREAD`. Returns every field flattened to ``(..., P·per_pair)``."""
+    position, active = points["position"], points["active"]
+    chosen = [torch.zeros_like(active[..., 0], dtype=torch.long)]
+    keep = [active[..., 0]]
+    gap = safe_norm(position - position[..., :1, :])  # (..., P, C)
+    for _ in range(1, min(per_pair, active.shape[-1])):
+        score = torch.where(active, gap, -1.0)
+        best = score.argmax(-1)
+        far = score.gather(-1, best.unsqueeze(-1)).squeeze(-1) > SPREAD
+        chosen.append(best)
+        keep.append(far)
+        picked = position.gather(-2, best[..., None, None].expand(*best.shape, 1, 3))
+        gap = torch.minimum(gap, safe_norm(position - picked))
+    index = torch.stack(chosen, -1)  # (..., P, k)
+    out = {}
+    for key, value in points.items():
+        if key in _SCALARS:
+            out[key] = value.gather(-1, index).flatten(-2)
+        else:
+            out[key] = value.gather(-2, index.unsqueeze(-1).expand(*index.shape, 3)).flatten(-3, -2)
+    out["active"] = out["active"] & torch.stack(keep, -1).flatten(-2)
+    return out
+
+
+def _deepest(points: dict[str, torch.Tensor], slots: int) -> dict[str, torch.Tensor]:
+    """The ``slots`` active points of least φ (padded with inactive ones), each field
+    ``(..., slots)`` or ``(..., slots, 3)``."""
+    phi, active = points["phi"], points["active"]
+    count = phi.shape[-1]
+    if count < slots:  # fewer candidates than slots: pad with inactive copies of the first
+        extra = slots - count
+        points = {
+            key: torch.cat([v, v[..., :1].expand(*v.shape[:-1], extra)], -1)
+            if key in _SCALARS
+            else torch.cat([v, v[..., :1, :].expand(*v.shape[:-2], extra, 3)], -2)
+            for key, v in points.items()
+        }
+        points["active"][..., count:] = False
+        phi, active = points["phi"], points["active"]
+    score = torch.where(active, phi, torch.inf)
+    index = score.topk(slots, -1, largest=False, sorted=True).indices
+    return {
+        key: value.gather(-1, index) if key in _SCALARS
+        else value.gather(-2, index.unsqueeze(-1).expand(*index.shape, 3))
+        for key, value in points.items()
+    }  # fmt: skip
+
+
+def _frame(normal: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)`` rows n, t₁, t₂ of a right-handed frame about unit ``normal (..., 3)``."""
+    axes = torch.eye(3, dtype=normal.dtype, device=normal.device)
+    least = normal.abs().argmin(-1)
+    axis = axes[least]
+    t1 = torch.linalg.cross(normal, axis)
+    t1 = t1 / safe_norm(t1).unsqueeze(-1)
+    t2 = torch.linalg.cross(normal, t1)
+    return torch.stack([normal, t1, t2], -2)
