@@ -12,7 +12,9 @@ File format (version :data:`VERSION`): a dataset is a directory holding
     and orientation weights), ``system`` (the affine quasi-dynamic system ``Q (nv,)``,
     ``b0 (nv,)``, ``B (nv, nu)``: ``b(u) = b0 + B·u``), ``u_lower``, ``u_upper``; the sizes
     ``nq``, ``nv``, ``nu``, ``slots``; ``control_dt`` [s] simulated per step; the object's
-    ``object_size`` [m] and ``object_mass`` [kg] (where the scene has an object); and
+    ``object_size`` [m] and ``object_mass`` [kg] (where the scene has an object) and, for a mesh
+    file, ``object_sha256`` (its :func:`~torchcontact.digests.content_sha256`; null for a
+    built-in or generated object), so data of a mesh since changed are refused; and
     ``trajectories``: one entry ``{"id", "file", "seed", "actions", "steps"}`` per finished
     trajectory.
 ``trajectory_00000.npz`` (one per trajectory, ``np.savez``, written atomically)
@@ -44,9 +46,11 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
+from torchcontact.digests import content_sha256
 from torchcontact.integrate import JointLayout, difference
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
+from torchcontact.objects import is_mesh_file
 from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.results import atomic_write, read_json, write_json
 from torchcontact.systems import QuasiDynamic
@@ -280,6 +284,7 @@ def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, 
         "noise": noise,
         "steps": steps,
         "seed": seed,
+        "object_sha256": content_sha256(obj) if is_mesh_file(obj) else None,
         **scene_header(built),
         "trajectories": [],
     }

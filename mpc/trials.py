@@ -8,15 +8,15 @@ on its configuration and inputs, so a parallel run's records equal a serial run'
 aside).
 
 A record's identity is its :class:`TrialConfig` plus its ``inputs`` (:func:`trial_inputs`: the
-SHA-256 of the object mesh, learned checkpoint and robot MJCF files it names, and the versions of
-torchcontact, torch and mujoco). On resume, a record at a trial's path is reused when its
-identity equals the trial's; set aside (renamed ``NAME.corrupt-<n>.json``, with a warning) and
-run again when it is not a readable record; set aside (``NAME.stale-<n>.json``) and run again
-when it differs only in :data:`RELEASE_FIELDS` (an older release of our scenes or of a library);
-and any other difference refuses the whole run before a trial runs (:class:`RecordMismatch`): a
-run never overwrites a record made with other settings or inputs. A record without ``inputs``
-(written before them) counts as made with the current inputs when it names no file, and as one of
-an older release when it does.
+SHA-256 of the object mesh, learned checkpoint and robot MJCF files it names, with every file their
+loaders read besides, and the versions of torchcontact, torch and mujoco). On resume, a record at a
+trial's path is reused when its identity equals the trial's; set aside (renamed
+``NAME.corrupt-<n>.json``, with a warning) and run again when it is not a readable record; set
+aside (``NAME.stale-<n>.json``) and run again when it differs only in :data:`RELEASE_FIELDS` (an
+older release of our scenes or of a library); and any other difference refuses the whole run before
+a trial runs (:class:`RecordMismatch`): a run never overwrites a record made with other settings or
+inputs. A record without ``inputs`` (written before them) counts as made with the current inputs
+when it names no file, and as one of an older release when it does.
 
 Per control step: detect contacts at the real state (MuJoCo), solve the MPC (torch), and
 simulate the applied control (MuJoCo); the three times are recorded separately.
@@ -42,6 +42,7 @@ import torch
 from tqdm.auto import tqdm
 
 from torchcontact import generated
+from torchcontact.digests import content_sha256
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
@@ -52,7 +53,6 @@ from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import (
-    file_sha256,
     locked_folder,
     read_json,
     writable_directory,
@@ -458,9 +458,11 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
 
 def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
     """The identity of ``config``'s inputs, stored as a record's ``inputs``: for each key of
-    :data:`INPUT_FILES` the SHA-256 of the file its field names (None where none), and the
-    versions of :data:`VERSION_KEYS`. ``hashes`` (resolved path → digest) caches the digests
-    across calls and is filled here. Raises ``ValueError`` naming the field when its file is
+    :data:`INPUT_FILES` the :func:`~torchcontact.digests.content_sha256` of the file its field
+    names (its SHA-256, covering too the files its loader reads: an MJCF's includes and
+    meshes, a glTF's buffers; None where none), and the versions of :data:`VERSION_KEYS`.
+    ``hashes`` (resolved path → file digest) caches the digests across calls and is filled
+    here. Raises ``ValueError`` naming the field when its file is
     missing."""
     hashes = {} if hashes is None else hashes
     inputs = {}
@@ -473,10 +475,7 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
             continue
         if not Path(path).is_file():
             raise ValueError(f"{field} must be an existing file, got {path!r} ({config.name})")
-        resolved = str(Path(path).resolve())
-        if resolved not in hashes:
-            hashes[resolved] = file_sha256(resolved)
-        inputs[key] = hashes[resolved]
+        inputs[key] = content_sha256(path, hashes)
     return {**inputs, **library_versions()}
 
 

@@ -5,6 +5,7 @@ API's arguments, and records and datasets that know every file they were made fr
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -18,12 +19,17 @@ from pathlib import Path
 
 import pytest
 import torch
+import trimesh
 
 from torchcontact.checkpoint import CheckpointError, load_checkpoint
 from torchcontact.cli import main
+from torchcontact.cli.learn_k import dataset_dir
+from torchcontact.digests import content_sha256, file_sha256, loaded_files
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
+from torchcontact.learn.data import DataFormatError, collect, read_manifest
 from torchcontact.mpc.trials import (
+    RecordMismatch,
     TrialRecord,
     TrialsInterrupted,
     load_learned,
@@ -33,7 +39,6 @@ from torchcontact.mpc.trials import (
 )
 from torchcontact.results import (
     FolderInUse,
-    file_sha256,
     locked_folder,
     writable_file,
     write_json,
@@ -415,3 +420,123 @@ def test_run_trials_checks_where_it_runs_before_writing(tmp_path, where, message
     with pytest.raises(ValueError, match=f"^{message}"):
         run_trials(FAST, out=tmp_path, progress=False, **where)
     assert not (tmp_path / "trials").exists()
+
+
+# --- 2. a record's identity covers every file its result depends on -------------------------
+
+ROBOT = """<mujoco>
+  <compiler meshdir="meshes"/>
+  <include file="parts/assets.xml"/>
+  <worldbody><body name="palm"><geom type="mesh" mesh="link"/></body></worldbody>
+</mujoco>
+"""
+ASSETS = """<mujocoinclude>
+  <include file="parts/more.xml"/>
+  <asset><mesh name="link" file="link.stl"/><hfield name="floor" file="floor.png"/></asset>
+</mujocoinclude>
+"""
+
+
+@pytest.fixture
+def robot(tmp_path):
+    """A robot MJCF that includes a file (which includes another) and names a mesh and a
+    height field, under its compiler's meshdir."""
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "robot.xml").write_text(ROBOT)
+    (tmp_path / "parts" / "assets.xml").write_text(ASSETS)
+    (tmp_path / "parts" / "more.xml").write_text("<mujocoinclude/>\n")
+    trimesh.creation.box([0.02, 0.02, 0.05]).export(tmp_path / "meshes" / "link.stl")
+    (tmp_path / "meshes" / "floor.png").write_bytes(b"\x89PNG not really")
+    return tmp_path / "robot.xml"
+
+
+def test_an_mjcf_is_known_by_every_file_it_includes_or_names(robot):
+    folder = robot.parent
+    assert loaded_files(robot) == [
+        folder / "parts/assets.xml",
+        folder / "parts/more.xml",
+        folder / "meshes/link.stl",
+        folder / "meshes/floor.png",
+    ]
+    before = content_sha256(robot)
+    assert before != file_sha256(robot)
+    for changed in ("parts/more.xml", "meshes/link.stl", "meshes/floor.png"):
+        path = folder / changed
+        path.write_bytes(path.read_bytes() + b" ")
+        assert content_sha256(robot) != before, changed
+        before = content_sha256(robot)
+    (folder / "meshes/floor.png").unlink()  # the loader will say so; the identity still differs
+    assert content_sha256(robot) != before
+
+
+def test_a_file_its_loader_reads_alone_keeps_its_plain_digest(tmp_path):
+    path = tmp_path / "cube.stl"
+    trimesh.creation.box([0.05] * 3).export(path)
+    assert loaded_files(path) == [] and content_sha256(path) == file_sha256(path)
+    (tmp_path / "broken.xml").write_text("<mujoco")  # MuJoCo reports it; no files found here
+    assert loaded_files(tmp_path / "broken.xml") == []
+
+
+def _gltf_box(folder: Path, size: float) -> Path:
+    """A box of side ``size`` [m] as ``box.gltf`` with its geometry in ``.bin`` buffers."""
+    for name, data in trimesh.creation.box([size] * 3).export(file_type="gltf").items():
+        (folder / ("box.gltf" if name.endswith(".gltf") else name)).write_bytes(data)
+    return folder / "box.gltf"
+
+
+def test_a_record_of_a_gltf_whose_buffers_changed_refuses_the_run(tmp_path):
+    """The reproduction: the .gltf is the same file, its .bin now holds an 8 cm box."""
+    mesh = _gltf_box(tmp_path, 0.05)
+    gltf = mesh.read_bytes()
+    config = dataclasses.replace(FAST[0], env="trifinger", task="in-hand", object=str(mesh))
+    _fake_record(tmp_path / "out", config)
+    _gltf_box(tmp_path, 0.08)
+    mesh.write_bytes(gltf)  # the top file unchanged
+    extents = trimesh.load(mesh, force="mesh").extents
+    assert extents == pytest.approx([0.08] * 3)  # what the loader reads has changed
+    with pytest.raises(RecordMismatch, match="inputs.object_sha256"):
+        run_trials([config], out=tmp_path / "out", progress=False)
+
+
+def test_a_record_of_a_robot_whose_included_file_changed_refuses_the_run(tmp_path, robot):
+    config = dataclasses.replace(FAST[0], env="custom", robot=str(robot), tips=("tip",))
+    _fake_record(tmp_path / "out", config)
+    (robot.parent / "parts" / "more.xml").write_text(
+        "<mujocoinclude><!-- edited --></mujocoinclude>"
+    )
+    with pytest.raises(RecordMismatch, match="inputs.robot_sha256"):
+        run_trials([config], out=tmp_path / "out", progress=False)
+
+
+# --- 3. learn-k datasets know their objects by content --------------------------------------
+
+
+def _data_args(tmp_path) -> argparse.Namespace:
+    return argparse.Namespace(
+        data=tmp_path / "data", scene="trifinger", actions="random", steps=3, seed=0
+    )
+
+
+def test_a_users_cube_and_the_built_in_cube_get_their_own_datasets(tmp_path):
+    args = _data_args(tmp_path)
+    mesh = tmp_path / "cube.stl"
+    trimesh.creation.box([0.06] * 3).export(mesh)
+    builtin, user = dataset_dir(args, "cube"), dataset_dir(args, str(mesh))
+    assert builtin != user and user.name.startswith("trifinger_cube-mesh-")
+    trimesh.creation.icosphere().apply_scale(0.03).export(mesh)  # another mesh, same box
+    assert dataset_dir(args, str(mesh)) not in (builtin, user)
+
+
+def test_a_dataset_of_a_mesh_since_changed_is_refused_in_one_line(tmp_path):
+    mesh = tmp_path / "block.stl"
+    trimesh.creation.box([0.05, 0.05, 0.05]).export(mesh)
+    data = tmp_path / "data"
+    collect(data, "trifinger", str(mesh), trajectories=1, steps=2, progress=False)
+    assert read_manifest(data)["object_sha256"] == content_sha256(mesh)
+    box = trimesh.creation.box([0.05, 0.05, 0.05])
+    box.vertices[0] *= 0.5  # same bounding box and mass, another shape
+    box.export(mesh)
+    with pytest.raises(DataFormatError, match="other settings .*'object_sha256'") as error:
+        collect(data, "trifinger", str(mesh), trajectories=2, steps=2, progress=False)
+    assert "\n" not in str(error.value)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
-import hashlib
 import io
 import json
 import math
@@ -193,15 +192,6 @@ def write_json(path: str | Path, data: Any) -> Path:
 
     text = json.dumps(json_safe(data), indent=2, default=default, allow_nan=False)
     return atomic_write(path, lambda f: f.write(text))
-
-
-def file_sha256(path: str | Path) -> str:
-    """The SHA-256 hex digest (64 characters) of the content of the file at ``path``."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def read_json(path: str | Path) -> Any:

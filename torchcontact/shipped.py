@@ -14,7 +14,7 @@ import functools
 import json
 from pathlib import Path
 
-from torchcontact.results import file_sha256
+from torchcontact.digests import file_sha256
 
 SHIPPED = "shipped"
 """The value of a trial's ``learned`` field that names its environment's shipped model."""

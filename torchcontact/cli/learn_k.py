@@ -51,6 +51,7 @@ from torchcontact.checkpoint import (
 )
 from torchcontact.cli import Parser
 from torchcontact.cli.split_store import load_split, save_split, split_digest, split_path
+from torchcontact.digests import content_sha256, file_sha256
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import MANIFEST, collect, load_objects
@@ -68,7 +69,8 @@ from torchcontact.learn.scenes import BOX_PUSHING, SCENES, Scene, make_scene
 from torchcontact.model import paper_model
 from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.trials import file_sha256, library_versions
+from torchcontact.mpc.trials import library_versions
+from torchcontact.objects import is_mesh_file
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend, parallel_map
 from torchcontact.results import (
     atomic_write,
@@ -348,11 +350,13 @@ def _check_split(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
 
 
 def dataset_dir(args: argparse.Namespace, obj: str) -> Path:
-    """The dataset folder of object ``obj`` under ``--data``."""
-    return (
-        args.data
-        / f"{args.scene}_{Path(obj).stem}_{args.actions}_steps{args.steps}_seed{args.seed}"
-    )
+    """The dataset folder of object ``obj`` under ``--data``: a mesh file's holds 8 hex digits
+    of its content's SHA-256 (``cube-mesh-1a2b3c4d``), so a changed mesh gets data of its own
+    and a user's ``cube.stl`` never shares the built-in cube's."""
+    name = Path(obj).stem
+    if is_mesh_file(obj) and Path(obj).is_file():
+        name = f"{name}-mesh-{content_sha256(obj)[:8]}"
+    return args.data / f"{args.scene}_{name}_{args.actions}_steps{args.steps}_seed{args.seed}"
 
 
 def check_outputs(args: argparse.Namespace) -> None:
