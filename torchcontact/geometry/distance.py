@@ -184,24 +184,31 @@ class Separation:
         distance: ``(..., P)`` [m], negative when the cores overlap.
         point_a, point_b: ``(..., P, 3)`` witness points on core a and core b [m].
         normal: ``(..., P, 3)`` unit normal from a towards b.
+        vertices_a: where b is solid, each of a's vertices against b, as
+            :func:`points_to_solid` returns it (distance, surface point, b's outward normal);
+            else None. vertices_b: b's vertices against a, likewise.
     """
 
-    def __init__(self, distance, point_a, point_b, normal):
+    def __init__(self, distance, point_a, point_b, normal, vertices_a=None, vertices_b=None):
         self.distance, self.point_a, self.point_b, self.normal = distance, point_a, point_b, normal
+        self.vertices_a, self.vertices_b = vertices_a, vertices_b
 
 
 def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
     """Signed distance of cores ``a`` and ``b`` pair by pair (see the module's docstring)."""
     gaps, from_a, from_b = [], [], []
     faces = []  # penetration candidates: (depth along a face normal, point a, point b, normal)
+    vertices_a = vertices_b = None
     if b.solid:
-        heights, gap, surface = _point_terms(a.vertices, b, smoothing)[3:]
+        terms = _point_terms(a.vertices, b, smoothing)
+        vertices_a, (heights, gap, surface) = terms[:3], terms[3:]
         gaps.append(gap)
         from_a.append(a.vertices)
         from_b.append(surface)
         faces.append(_face_axis(heights, a.vertices, b.normals, smoothing, flip=True))
     if a.solid:
-        heights, gap, surface = _point_terms(b.vertices, a, smoothing)[3:]
+        terms = _point_terms(b.vertices, a, smoothing)
+        vertices_b, (heights, gap, surface) = terms[:3], terms[3:]
         gaps.append(gap)
         from_a.append(surface)
         from_b.append(b.vertices)
@@ -238,6 +245,8 @@ def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
         torch.where(o, deep_a, point_a),
         torch.where(o, deep_b, point_b),
         torch.where(o, deep_normal, apart_normal),
+        vertices_a,
+        vertices_b,
     )
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcontact.rotations import quaternion_exp, quaternion_multiply, quaternion_to_matrix
+from torchcontact.rotations import quaternion_to_matrix
 from torchcontact.validation import check_shape
 
 
@@ -110,6 +110,23 @@ class BodyTree(torch.nn.Module):
                 rotational[joint.dof : joint.dof + _DOFS[joint.kind]] = True
         self.register_buffer("rotational", rotational)
         self._by_body = [[i for i, j in enumerate(joints) if j.body == b] for b in range(nbody)]
+        self._moving = [b for b in range(1, nbody) if moves[b].any()]
+        self.register_buffer("offset_rotation", quaternion_to_matrix(offset_quaternion))
+        cross = torch.zeros(len(joints), 3, 3, dtype=offset_position.dtype)
+        for i, (x, y, z) in enumerate(j.axis for j in joints):
+            cross[i] = offset_position.new_tensor([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+        self.register_buffer("joint_cross", cross)
+        self.register_buffer("joint_cross_square", cross @ cross)
+        self.register_buffer("world_axes", torch.eye(3, dtype=offset_position.dtype))
+        # the poses of the bodies no joint moves, composed once
+        position = torch.zeros(nbody, 3, dtype=offset_position.dtype)
+        rotation = torch.eye(3, dtype=offset_position.dtype).repeat(nbody, 1, 1)
+        for body in range(1, nbody):
+            up = self.parent[body]
+            position[body] = position[up] + rotation[up] @ offset_position[body]
+            rotation[body] = rotation[up] @ self.offset_rotation[body]
+        self.register_buffer("fixed_position", position)
+        self.register_buffer("fixed_rotation", rotation)
 
     @property
     def nbody(self) -> int:
@@ -124,55 +141,52 @@ class BodyTree(torch.nn.Module):
         """The bodies' poses and, per dof, its world axis ``(..., nv, 3)`` and anchor."""
         check_shape("q", q, f"(..., {self.nq})", q.dim() >= 1 and q.shape[-1] == self.nq)
         batch = q.shape[:-1]
-        identity = q.new_tensor([1.0, 0.0, 0.0, 0.0]).expand(*batch, 4)
-        positions = [q.new_zeros(*batch, 3)]
-        quaternions = [identity]
-        rotations = [quaternion_to_matrix(identity)]
+        # bodies no joint moves keep the pose composed once at construction
+        positions = list(self.fixed_position.expand(*batch, -1, -1).unbind(-2))
+        rotations = list(self.fixed_rotation.expand(*batch, -1, -1, -1).unbind(-3))
         axes: list[torch.Tensor | None] = [None] * self.nv
         anchors: list[torch.Tensor | None] = [None] * self.nv
-        for body in range(1, self.nbody):
+        for body in self._moving:
             up = self.parent[body]
             position = positions[up] + _apply(rotations[up], self.offset_position[body])
-            quaternion = quaternion_multiply(quaternions[up], self.offset_quaternion[body])
-            rotation = quaternion_to_matrix(quaternion)
+            rotation = rotations[up] @ self.offset_rotation[body]
             for index in self._by_body[body]:
                 joint = self.joints[index]
-                axis, anchor_local = self.joint_axis[index], self.joint_anchor[index]
+                anchor_local = self.joint_anchor[index]
                 if joint.kind == "free":
                     position = q[..., joint.qpos : joint.qpos + 3]
-                    quaternion = _normalized(q[..., joint.qpos + 3 : joint.qpos + 7])
-                    rotation = quaternion_to_matrix(quaternion)
+                    rotation = quaternion_to_matrix(
+                        _normalized(q[..., joint.qpos + 3 : joint.qpos + 7])
+                    )
                     for k in range(3):
-                        axes[joint.dof + k] = q.new_tensor(
-                            [0.0] * k + [1.0] + [0.0] * (2 - k)
-                        ).expand(*batch, 3)
-                        anchors[joint.dof + k] = position
-                    for k in range(3):
+                        axes[joint.dof + k] = self.world_axes[k].expand(*batch, 3)
                         axes[joint.dof + 3 + k] = rotation[..., :, k]
-                        anchors[joint.dof + 3 + k] = position
+                        anchors[joint.dof + k] = anchors[joint.dof + 3 + k] = position
                     continue
                 anchor = position + _apply(rotation, anchor_local)
                 if joint.kind == "slide":
-                    world_axis = _apply(rotation, axis)
+                    world_axis = _apply(rotation, self.joint_axis[index])
                     position = position + world_axis * (q[..., joint.qpos, None] - joint.reference)
                     axes[joint.dof], anchors[joint.dof] = world_axis, anchor
                     continue
                 if joint.kind == "hinge":
-                    world_axis = _apply(rotation, axis)
-                    turn = quaternion_exp(axis * (q[..., joint.qpos, None] - joint.reference))
-                    axes[joint.dof], anchors[joint.dof] = world_axis, anchor
+                    axes[joint.dof] = _apply(rotation, self.joint_axis[index])
+                    anchors[joint.dof] = anchor
+                    angle = (q[..., joint.qpos] - joint.reference)[..., None, None]
+                    # Rodrigues: I + sin θ K + (1 − cos θ) K², K the axis's cross matrix
+                    cross, square = self.joint_cross[index], self.joint_cross_square[index]
+                    rotation = rotation + rotation @ (
+                        torch.sin(angle) * cross + (1 - torch.cos(angle)) * square
+                    )
                 else:  # ball
-                    turn = _normalized(q[..., joint.qpos : joint.qpos + 4])
-                quaternion = quaternion_multiply(quaternion, turn)
-                rotation = quaternion_to_matrix(quaternion)
-                if joint.kind == "ball":
+                    turn = quaternion_to_matrix(_normalized(q[..., joint.qpos : joint.qpos + 4]))
+                    rotation = rotation @ turn
                     for k in range(3):
                         axes[joint.dof + k], anchors[joint.dof + k] = rotation[..., :, k], anchor
                 # the anchor stays where it is while the body turns about it
                 position = anchor - _apply(rotation, anchor_local)
-            positions.append(position)
-            quaternions.append(quaternion)
-            rotations.append(rotation)
+            positions[body] = position
+            rotations[body] = rotation
         poses = (torch.stack(positions, -2), torch.stack(rotations, -3))
         if self.nv == 0:
             empty = q.new_zeros(*batch, 0, 3)

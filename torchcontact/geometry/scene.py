@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import PAD_DISTANCE, Contacts
-from torchcontact.geometry.distance import Core, core_separation, points_to_solid, safe_norm
+from torchcontact.geometry.distance import Core, core_separation, safe_norm
 from torchcontact.geometry.kinematics import BodyTree
 from torchcontact.geometry.shapes import Shape, as_tensor
 
@@ -31,11 +31,14 @@ class Pair:
     Attributes:
         a, b: indices into the scene's shapes; ``b`` may be a plane, ``a`` may not.
         mu: the friction coefficient of its rows.
+        label: what it is, for messages and reports (the reader gives MuJoCo's geom names,
+            ``"geom_a|geom_b"``).
     """
 
     a: int
     b: int
     mu: float
+    label: str = ""
 
 
 class SceneGeometry(torch.nn.Module):
@@ -215,14 +218,14 @@ class _Group(torch.nn.Module):
         normal = [main.normal.unsqueeze(-2)]
         surface_a = [main.point_a.unsqueeze(-2)]
         surface_b = [main.point_b.unsqueeze(-2)]
-        if b.solid:
-            distance, surface, outward = points_to_solid(a.vertices, b, smoothing)
+        if main.vertices_a is not None:
+            distance, surface, outward = main.vertices_a
             phi.append(distance)
             normal.append(-outward)
             surface_a.append(a.vertices)
             surface_b.append(surface)
-        if a.solid:
-            distance, surface, outward = points_to_solid(b.vertices, a, smoothing)
+        if main.vertices_b is not None:
+            distance, surface, outward = main.vertices_b
             phi.append(distance)
             normal.append(outward)
             surface_a.append(surface)

@@ -76,11 +76,22 @@ def geom_shape(model: mujoco.MjModel, geom: int) -> Shape:
         mesh = model.geom_dataid[geom]
         start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
         return Shape.hull(model.mesh_vert[start : start + count] @ rotation.T + position)
-    name = model.geom(geom).name or f"#{geom}"
+    name = _geom_name(model, geom)
     raise ValueError(
         f"geom {name!r} is a {mujoco.mjtGeom(kind).name}: the torch geometry models spheres, "
         "capsules, boxes, planes and meshes (by their convex hull)"
     )
+
+
+def _geom_name(model: mujoco.MjModel, geom: int) -> str:
+    return model.geom(geom).name or f"#{geom}"
+
+
+def geom_id(model: mujoco.MjModel, label: str) -> int:
+    """The id of the geom a :attr:`Pair.label` half names (its name, or ``#id``)."""
+    if label.startswith("#"):
+        return int(label[1:])
+    return int(model.geom(label).id)
 
 
 def collides(model: mujoco.MjModel, g1: int, g2: int) -> bool:
@@ -143,7 +154,8 @@ def scene_geometry(
             mu = detector.mu
             if mu is None:
                 mu = float(max(model.geom_friction[g1, 0], model.geom_friction[g2, 0]))
-            pairs.append(Pair(shape_of(g1), shape_of(g2), float(mu)))
+            label = f"{_geom_name(model, g1)}|{_geom_name(model, g2)}"
+            pairs.append(Pair(shape_of(g1), shape_of(g2), float(mu), label))
             margins.add(float(max(model.geom_margin[g1], model.geom_margin[g2])))
     if len(margins) > 1:
         raise ValueError(f"detector: the modelled pairs' margins must agree, got {sorted(margins)}")
