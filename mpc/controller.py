@@ -435,6 +435,8 @@ class ContactImplicitMPC:
         check_finite("q", q)
         check_shape("target_p", target_p, "(3,)", target_p.shape == (3,))
         check_shape("target_quat", target_quat, "(4,)", target_quat.shape == (4,))
+        check_finite("target_p", target_p)
+        check_finite("target_quat", target_quat)
         start = time.perf_counter()
         # inputs checked above (contacts when built): what plan derives from them is not
         # checked again (each value check is a host sync inside a solve of a few ms)

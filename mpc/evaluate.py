@@ -32,6 +32,8 @@ from torchcontact.mpc.controller import RESIDUAL_PLANS
 from torchcontact.mpc.planners import PLANNERS
 from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
+    MAX_STIFFNESS,
+    MAX_TRIALS,
     MPC_MODELS,
     TrialConfig,
     finish_compiling,
@@ -278,8 +280,11 @@ def _stiffness(text: str | None) -> float | str | None:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not 0 < value < math.inf:
-        raise ValueError(f"--stiffness must be 'shipped', 'paper' or a positive number, got {text}")
+    if not 0 < value <= MAX_STIFFNESS:
+        raise ValueError(
+            f"--stiffness must be 'shipped', 'paper' or a positive number at most "
+            f"{MAX_STIFFNESS:g}, got {text}"
+        )
     return value
 
 
@@ -307,6 +312,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if args.trials > MAX_TRIALS:
+        parser.error(f"--trials must be at most {MAX_TRIALS}, got {args.trials}")
     if args.first_seed < 0:
         parser.error(f"--first-seed must be >= 0, got {args.first_seed}")
     try:

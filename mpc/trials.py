@@ -65,6 +65,14 @@ SCENES_VERSION = 11
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
 resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
 
+MAX_STIFFNESS = 1e9
+"""The largest K a trial takes: far above any contact's (the paper's are 0.5 to 5), and far
+below where the MPC's float32 cost overflows (K = 1e20 makes it NaN at its first plan)."""
+
+MAX_TRIALS = 1_000_000
+"""The most trials one call of :func:`trial_configs` makes (``torchcontact run`` one run): more
+would take months on any machine, and building their configurations alone takes minutes."""
+
 DEFAULT_MODEL = "paper"
 """The contact model the MPC plans through unless told otherwise."""
 
@@ -131,6 +139,10 @@ FINITE_KEYS = (
 """Record values that must be finite: a record holding a non-finite one is never written and
 counts as corrupt on reading."""
 
+
+ERROR_KEYS = ("pos_err_mm", "quat_err", "angle_err_deg")
+"""A record's final errors, which are never negative: a record holding one that is counts as
+corrupt, as one with a NaN solve time or more steps than its ``max_steps`` does."""
 
 OBJECT_FACTS = ("object_extent", "object_mass_kg", "object_friction_mu", "object_collision")
 """Record fields describing the object a trial used (its bounding box [m], mass [kg], sliding
@@ -363,6 +375,7 @@ def trial_configs(
     :class:`TrialConfig` fields) say otherwise."""
     description = environment(env, options.get("robot"), options.get("tips"))
     settings = _settings(description, settings)
+    pairs, seeds = (x if hasattr(x, "__len__") else list(x) for x in (pairs, seeds))
     _check_trial_arguments(description, pairs, seeds, max_steps, options)
     if options.get("model") == "relaxed_qp":
         options.setdefault("relaxation", PAPER_RELAXATION)
@@ -438,6 +451,10 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
                 f"pairs: object of task {task!r} must be one of "
                 f"{[o for t, o in description.pairs if t == task]}{also}, got {obj!r}"
             )
+    if len(pairs) * len(seeds) > MAX_TRIALS:
+        raise ValueError(
+            f"pairs × seeds must make at most {MAX_TRIALS} trials, got {len(pairs)} × {len(seeds)}"
+        )
     for seed in seeds:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seeds must be non-negative integers, got {seed!r}")
@@ -445,12 +462,16 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
         isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1
     ):
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    for name in ("stiffness", "relaxation"):
+    for name, most in (("stiffness", MAX_STIFFNESS), ("relaxation", math.inf)):
         value = options.get(name)
-        if value is not None and not (
-            isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value < math.inf
-        ):
-            raise ValueError(f"{name} must be a positive finite number or None, got {value!r}")
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        if value is not None and not (number and 0 < value <= most and math.isfinite(value)):
+            limit = (
+                f"a positive number at most {most:g}"
+                if most < math.inf
+                else "a positive finite number"
+            )
+            raise ValueError(f"{name} must be {limit} (or None), got {value!r}")
     model = options.get("model", DEFAULT_MODEL)
     if model not in MPC_MODELS:
         raise ValueError(f"model must be one of {MPC_MODELS}, got {model!r}")
@@ -737,8 +758,9 @@ def _is(value, kind: str) -> bool:
 
 def record_problem(record) -> str | None:
     """Why a record read from JSON is not a usable trial record (wrong shape, a missing key, a
-    wrong type, a non-finite value of :data:`FINITE_KEYS`, malformed ``inputs``); None if it
-    is usable."""
+    wrong type, a non-finite value of :data:`FINITE_KEYS`, an impossible value: a negative
+    error or time, more steps than ``max_steps``; malformed ``inputs``); None if it is
+    usable."""
     if not isinstance(record, dict):
         return f"a JSON {type(record).__name__}, not an object"
     stored = stored_config(record)
@@ -750,6 +772,11 @@ def record_problem(record) -> str | None:
     for key in FINITE_KEYS:
         if not all(math.isfinite(x) for x in np.ravel(record[key])):
             return f"{key} is not finite"
+    for key in (*ERROR_KEYS, "detect_ms", "solve_ms", "sim_ms", "iterations"):
+        if not all(math.isfinite(x) and x >= 0 for x in np.ravel(record[key])):
+            return f"{key} must be finite and >= 0"
+    if not 1 <= record["steps"] <= stored["max_steps"]:
+        return f"steps must lie in [1, max_steps = {stored['max_steps']}], got {record['steps']}"
     inputs = record.get("inputs")
     if inputs is not None and not (
         isinstance(inputs, dict) and all(_is(v, "str?") for v in inputs.values())

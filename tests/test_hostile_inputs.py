@@ -24,26 +24,34 @@ import trimesh
 from torchcontact.checkpoint import CheckpointError, load_checkpoint
 from torchcontact.cli import main
 from torchcontact.cli.learn_k import dataset_dir
+from torchcontact.contacts import Contacts
 from torchcontact.digests import content_sha256, file_sha256, loaded_files
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import DataFormatError, collect, read_manifest
 from torchcontact.mpc.trials import (
+    MAX_STIFFNESS,
     RecordMismatch,
     TrialRecord,
     TrialsInterrupted,
+    build_trial,
     load_learned,
+    record_status,
     run_trials,
     trial_configs,
     trial_inputs,
 )
+from torchcontact.qp import qp_solve
 from torchcontact.results import (
     FolderInUse,
     locked_folder,
     writable_file,
     write_json,
 )
+from torchcontact.shapes import load_object
 from torchcontact.shipped import SHIPPED, check_shipped, resolve_learned, shipped_path
+from torchcontact.stiffness import StateNetwork
+from torchcontact.systems import QuasiDynamic
 
 ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
 CLI = [sys.executable, "-c", "import sys, torchcontact.cli as c; sys.exit(c.main())"]
@@ -540,3 +548,177 @@ def test_a_dataset_of_a_mesh_since_changed_is_refused_in_one_line(tmp_path):
     with pytest.raises(DataFormatError, match="other settings .*'object_sha256'") as error:
         collect(data, "trifinger", str(mesh), trajectories=2, steps=2, progress=False)
     assert "\n" not in str(error.value)
+
+
+# --- 7. errors name the input that is wrong -------------------------------------------------
+
+BAD_FACES = "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 2 3\nf 1 2 9\nf 1 3 4\nf 2 3 4\n"
+"""An OBJ mesh whose second face names a vertex it does not have."""
+
+
+def test_a_checkpoint_with_nan_weights_is_named_damaged(tmp_path, capsys):
+    payload = torch.load(SHIPPED_TRIFINGER, weights_only=True)
+    key = next(iter(payload["state_dict"]))
+    payload["state_dict"][key] = torch.full_like(payload["state_dict"][key], math.nan)
+    path = tmp_path / "nan.pt"
+    torch.save(payload, path)
+    with pytest.raises(CheckpointError, match=f"its weights {re.escape(key)} hold NaN or Inf"):
+        load_checkpoint(path)
+    argv = ["run", "trifinger", "--trials", "1", "--max-steps", "1", "--no-compile"]
+    last = _refused([*argv, "--out", str(tmp_path / "out"), "--learned", str(path)], capsys,
+                    "run", "--learned")  # fmt: skip
+    assert "object_metric" not in last and "hold NaN or Inf" in last
+
+
+def _contacts(**values) -> Contacts:
+    fields = {
+        "phi": torch.rand(2), "jac_normal": torch.randn(2, 3), "jac_tangent": torch.randn(2, 2, 3),
+        "mu": torch.ones(2), "active": torch.ones(2, dtype=torch.bool),
+        "frame": torch.eye(3).expand(2, 3, 3).clone(), "position": torch.zeros(2, 3),
+    }  # fmt: skip
+    return Contacts(**{**fields, **values})
+
+
+@pytest.mark.parametrize("name", ["frame", "position", "phi", "jac_normal", "jac_tangent"])
+def test_a_nan_in_a_contacts_field_is_named(name):
+    value = _contacts().__getattribute__(name).clone()
+    value.view(-1)[0] = math.nan
+    with pytest.raises(ValueError, match=f"^{name} must be finite"):
+        _contacts(**{name: value})
+
+
+@pytest.mark.parametrize("stiffness", ["1e30", "1e10", "2e9"])
+def test_a_stiffness_past_what_the_mpc_takes_is_refused_first(tmp_path, capsys, stiffness):
+    last = _refused([*RUN, "--out", str(tmp_path), "--stiffness", stiffness], capsys, "run",
+                    "--stiffness")  # fmt: skip
+    assert f"at most {MAX_STIFFNESS:g}, got {stiffness}" in last
+    with pytest.raises(ValueError, match=r"^stiffness must be a positive number at most 1e\+09"):
+        trial_configs("fingertips", [("rotation", "cube")], [0], stiffness=float(stiffness))
+
+
+@pytest.fixture(scope="module")
+def mpc_and_plant():
+    env, plant, mpc = build_trial(FAST[0])
+    return mpc, plant
+
+
+@pytest.mark.parametrize("which", ["target_p", "target_quat"])
+def test_a_nan_target_is_named_by_the_mpc_before_it_plans(mpc_and_plant, which):
+    mpc, plant = mpc_and_plant
+    target = {"target_p": torch.zeros(3), "target_quat": torch.tensor([1.0, 0, 0, 0])}
+    target[which][0] = math.nan
+    q = torch.as_tensor(plant.state())
+    with pytest.raises(ValueError, match=f"^{which} must be finite"):
+        mpc.plan(q, plant.contacts(mpc.dtype), target["target_p"], target["target_quat"])
+
+
+def test_a_mesh_with_a_bad_face_index_is_refused_in_one_line(tmp_path, capsys):
+    mesh = tmp_path / "bad.obj"
+    mesh.write_text(BAD_FACES)
+    with pytest.raises(ValueError, match="must hold a readable triangle mesh.*IndexError"):
+        load_object(mesh)
+    run = ["run", "trifinger", "--trials", "1", "--max-steps", "1", "--no-compile"]
+    _refused([*run, "--out", str(tmp_path / "o"), "--object", str(mesh)], capsys, "run",
+             "--object")  # fmt: skip
+    learn = ["learn-k", "--out", str(tmp_path / "l"), "--scene", "trifinger", "--no-progress"]
+    _refused([*learn, "--object", str(mesh)], capsys, "learn-k", "--object")
+    assert not (tmp_path / "l" / "data").exists()
+
+
+def test_a_quasi_dynamic_system_of_mismatched_object_sizes_names_both():
+    with pytest.raises(ValueError, match="object_metric and object_force must have one entry"):
+        QuasiDynamic([1.0] * 5, 1.0, [0.0] * 6, n_robot=3)
+
+
+def test_a_state_network_names_a_q_of_the_wrong_length():
+    with pytest.raises(ValueError, match=r"^q must have shape \(\.\.\., 16\), got \(13,\)"):
+        StateNetwork(16, 8)(Contacts.empty(2, 9), 4, q=torch.zeros(13))
+
+
+@pytest.mark.parametrize(
+    "active, message",
+    [
+        (torch.ones(4), "active must be a bool tensor of shape (..., 4), got torch.float"),
+        ("all", "active must be a bool tensor of shape (..., 4), got str"),
+        (torch.ones(5, dtype=torch.bool), "active must have shape (..., 4), got (5,)"),
+    ],
+)
+def test_qp_solve_checks_its_active_rows(active, message):
+    Q, b, jac, phi = torch.ones(3), torch.zeros(3), torch.randn(4, 3), torch.rand(4)
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}"):
+        qp_solve(Q, b, jac, phi, 0.1, active=active)
+
+
+# --- 8. bounded and honest at the edges -----------------------------------------------------
+
+
+def test_a_ray_address_where_nothing_listens_is_refused_at_once(tmp_path, capsys):
+    start = time.perf_counter()
+    argv = [*RUN, "--out", str(tmp_path), "--backend", "ray", "--address", "127.0.0.1:1"]
+    last = _refused(argv, capsys, "run", "--backend/--address/--workers")
+    assert "address '127.0.0.1:1': no Ray cluster answers there" in last
+    with pytest.raises(ValueError, match="address '127.0.0.1:1': no Ray cluster answers"):
+        run_trials(FAST, out=tmp_path, progress=False, backend="ray", address="127.0.0.1:1")
+    assert time.perf_counter() - start < 60 and not (tmp_path / "trials").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, option, message",
+    [
+        (["--trials", "100000000"], "--trials", "--trials must be at most 1000000"),
+        (["--object", "random:50000000"], "--object", "random:N needs 1 <= N <= 100000"),
+        (["--object", "random:0-50000000"], "--object", "random:A-B names at most 100000"),
+        (["--object", "cube", "--object-size", "5"], "", "object 'cube' would be 5 m across"),
+    ],
+)
+def test_sizes_that_cannot_run_are_refused_naming_the_limit(
+    tmp_path, capsys, argv, option, message
+):
+    start = time.perf_counter()
+    base = ["run", "trifinger", "--task", "in-hand", "--max-steps", "1", "--no-compile"]
+    last = _refused([*base, "--out", str(tmp_path), *argv], capsys, "run", option)
+    assert message in last and time.perf_counter() - start < 30
+    assert not (tmp_path / "trials").exists()
+
+
+def test_the_trial_api_refuses_more_trials_than_it_takes_at_once():
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"^pairs × seeds must make at most 1000000 trials"):
+        trial_configs("fingertips", [("rotation", "cube")], range(10**8))
+    assert time.perf_counter() - start < 5
+
+
+def test_learn_k_refuses_an_empty_object(tmp_path, capsys):
+    argv = ["learn-k", "--out", str(tmp_path), "--no-progress", "--object", ""]
+    assert "got ''" in _refused(argv, capsys, "learn-k", "--object")
+
+
+def test_a_mesh_too_small_for_mujoco_is_refused_with_our_message(tmp_path, capsys):
+    mesh = tmp_path / "speck.stl"
+    trimesh.creation.box([1e-5] * 3).export(mesh)
+    with pytest.raises(ValueError, match="too small or too thin for MuJoCo"):
+        environment("trifinger").make_plant(str(mesh))
+    run = ["run", "trifinger", "--trials", "1", "--max-steps", "1", "--no-compile"]
+    last = _refused([*run, "--out", str(tmp_path / "o"), "--object", str(mesh)], capsys, "run",
+                    "--object")  # fmt: skip
+    assert "mesh volume is too small" not in last
+
+
+IMPOSSIBLE = [
+    ({"pos_err_mm": -1.0}, "pos_err_mm must be finite and >= 0"),
+    ({"angle_err_deg": -0.5}, "angle_err_deg must be finite and >= 0"),
+    ({"steps": 99}, "steps must lie in [1, max_steps = 1], got 99"),
+    ({"steps": 0}, "steps must lie in [1, max_steps = 1], got 0"),
+    ({"solve_ms": [math.nan]}, "solve_ms must be finite and >= 0"),
+    ({"detect_ms": [-2.0]}, "detect_ms must be finite and >= 0"),
+    ({"iterations": [-1]}, "iterations must be finite and >= 0"),
+]
+
+
+@pytest.mark.parametrize("change, why", IMPOSSIBLE)
+def test_a_record_edited_to_impossible_values_is_corrupt_and_run_again(tmp_path, change, why):
+    (config,) = FAST
+    path = _fake_record(tmp_path, config)
+    path.write_text(json.dumps({**json.loads(path.read_text()), **change}))  # NaN as a literal
+    status, found = record_status(path, config, trial_inputs(config))
+    assert status == "corrupt" and found == why

@@ -216,10 +216,17 @@ def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, d
         state = payload["state_dict"]
         model = model.to(next(iter(state.values())).dtype)
         model.load_state_dict(state)
+        broken = [
+            key for key, x in state.items() if x.is_floating_point() and not x.isfinite().all()
+        ]
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, StopIteration) as error:
         raise CheckpointError(
             f"{path}: a damaged checkpoint: it does not rebuild its model ({error})"
         ) from None
+    if broken:
+        raise CheckpointError(
+            f"{path}: a damaged checkpoint: its weights {broken[0]} hold NaN or Inf"
+        )
     return model, config, meta
 
 

@@ -116,8 +116,9 @@ class Contacts:
                 f"{(*batch, nc, 3)}",
                 self.position.shape == (*batch, nc, 3),
             )
-        for name in ("phi", "jac_normal", "jac_tangent"):
-            check_finite(name, getattr(self, name))
+        for name in ("phi", "jac_normal", "jac_tangent", "frame", "position"):
+            if getattr(self, name) is not None:
+                check_finite(name, getattr(self, name))
         check_nonnegative("mu", self.mu)
 
     @classmethod

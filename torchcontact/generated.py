@@ -35,6 +35,10 @@ GENERATOR_VERSION = 1
 change of what is made of the draws (scenes 11: the resting face's margin judged after the
 stretch) bumps :data:`~torchcontact.mpc.trials.SCENES_VERSION` only, so old records are rerun."""
 
+MAX_SET = 100_000
+"""The most objects a set (``random:N``, ``random:A-B``) names: a sweep of that many objects
+already takes days."""
+
 REPORT_SEEDS = 1000
 """First seed of the reported set: tune on seeds below it, report on seeds from it on."""
 
@@ -82,17 +86,19 @@ def is_set(spec: object) -> bool:
 
 def expand(spec: str) -> list[str]:
     """The object names of ``spec``: ``"random:N"``, the first N reported seeds (from
-    :data:`REPORT_SEEDS`); ``"random:A-B"``, seeds A to B inclusive. Raises ``ValueError``
-    naming the forms for anything else."""
+    :data:`REPORT_SEEDS`); ``"random:A-B"``, seeds A to B inclusive; at most
+    :data:`MAX_SET` objects. Raises ``ValueError`` naming the forms for anything else."""
     if match := _COUNT.match(spec):
         count = int(match.group(1))
-        if count < 1:
-            raise ValueError(f"random:N needs N >= 1, got {spec!r}")
+        if not 1 <= count <= MAX_SET:
+            raise ValueError(f"random:N needs 1 <= N <= {MAX_SET}, got {spec!r}")
         return [name(REPORT_SEEDS + i) for i in range(count)]
     if match := _RANGE.match(spec):
         first, last = int(match.group(1)), int(match.group(2))
         if last < first:
             raise ValueError(f"random:A-B needs A <= B, got {spec!r}")
+        if last - first + 1 > MAX_SET:
+            raise ValueError(f"random:A-B names at most {MAX_SET} objects, got {spec!r}")
         return [name(seed) for seed in range(first, last + 1)]
     raise ValueError(
         f"generated objects are named 'random:N' (N objects from seed {REPORT_SEEDS}) or "

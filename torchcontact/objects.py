@@ -17,6 +17,7 @@ from pathlib import Path
 from torchcontact import generated
 from torchcontact.shapes import (
     COLLISIONS,
+    MAX_MESH_EXTENT,
     OBJECT_SIZES,
     ObjectMesh,
     load_object,
@@ -97,10 +98,13 @@ def resolve(
         box = OBJECT_SIZES[obj] if listed_size is None else listed_size
         factor = _factor(options, max(box))
         size = box if factor is None else tuple(side * factor for side in box)
+        _check_extent(obj, max(size))
         return make_object(obj, mass=mass, size=size, collision=collision)
     if generated.is_generated(obj):
         seed = generated.seed_of(obj)
-        return generated.generate(seed, mass, options.size, options.scale, collision)
+        made = generated.generate(seed, mass, options.size, options.scale, collision)
+        _check_extent(obj, float(max(made.size)))
+        return made
     if is_mesh_file(obj):
         decomposition = "hull" if collision == "hull" else "auto"
         # named apart from the built-in objects, whose names key the paper's scene facts
@@ -110,6 +114,16 @@ def resolve(
         f"obj must be a built-in object among {tuple(OBJECT_SIZES)}, a generated object "
         f"('random-SEED'), a mesh file or an ObjectMesh, got {obj!r}"
     )
+
+
+def _check_extent(obj: str, extent: float) -> None:
+    """Refuse a built-in or generated object scaled past :data:`~torchcontact.shapes
+    .MAX_MESH_EXTENT`, as a mesh file is."""
+    if extent > MAX_MESH_EXTENT:
+        raise ValueError(
+            f"object {obj!r} would be {extent:g} m across, more than {MAX_MESH_EXTENT:g} m, the "
+            "most an object may be: give a smaller size (size=, --object-size) or scale"
+        )
 
 
 def _factor(options: ObjectOptions, extent: float) -> float | None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 import multiprocessing
 import signal
+import socket
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -63,6 +64,28 @@ def check_backend(workers: int, backend: str, address: str | None) -> None:
         raise ValueError(f"address is for backend='ray', got backend={backend!r}")
     if backend == "ray":
         import_ray()
+        if address is not None:
+            check_address(address)
+
+
+RAY_CONNECT_TIMEOUT = 10.0
+"""[s] How long :func:`check_address` waits for a Ray cluster to answer (``ray.init`` itself
+waits minutes on an address where nothing listens)."""
+
+
+def check_address(address: str) -> None:
+    """Refuse a Ray ``address`` (``HOST:PORT``, ``ray://HOST:PORT`` or ``auto``) where no
+    server accepts a connection within :data:`RAY_CONNECT_TIMEOUT`: ``ValueError`` naming it."""
+    if address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"address must be HOST:PORT, ray://HOST:PORT or auto, got {address!r}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), RAY_CONNECT_TIMEOUT).close()
+    except OSError as error:
+        reason = error.strerror or f"no answer within {RAY_CONNECT_TIMEOUT:g} s"
+        raise ValueError(f"address {address!r}: no Ray cluster answers there ({reason})") from None
 
 
 def _local_map(function, items, workers: int) -> Iterator[tuple[int, Any]]:

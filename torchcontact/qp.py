@@ -16,6 +16,7 @@ import scipy.sparse as sparse
 import torch
 
 from torchcontact.functional import Scalar, _check_step_inputs, check_metric, is_dense_metric
+from torchcontact.validation import check_shape
 
 OSQP_SETTINGS = {
     "verbose": False,
@@ -76,6 +77,10 @@ def qp_solve(
     h_t = torch.as_tensor(h, dtype=torch.float64)
     if active is None:
         active = torch.ones(phi.shape, dtype=torch.bool)
+    if not isinstance(active, torch.Tensor) or active.dtype != torch.bool:
+        found = active.dtype if isinstance(active, torch.Tensor) else type(active).__name__
+        raise ValueError(f"active must be a bool tensor of shape (..., {m}), got {found}")
+    check_shape("active", active, f"(..., {m})", active.dim() >= 1 and active.shape[-1] == m)
     batch = torch.broadcast_shapes(
         q_batch, b.shape[:-1], jac.shape[:-2], phi.shape[:-1], active.shape[:-1], h_t.shape
     )

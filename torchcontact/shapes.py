@@ -216,6 +216,10 @@ def make_object(
     return dataclasses.replace(obj, collide_hull=True) if hull and len(obj.parts) > 1 else obj
 
 
+MIN_PART_VOLUME = 1e-14
+"""[m³] The least volume a convex part of an object may enclose: MuJoCo refuses a mesh below
+about 1e-15 m³ ("mesh volume is too small"), so an object is refused with this first."""
+
 MAX_MESH_EXTENT = 1.0
 """[m] A mesh file whose largest extent, after its size or scale, exceeds this is refused: it
 is most likely in millimetres."""
@@ -255,7 +259,13 @@ def load_object(
         raise ValueError(f"decomposition must be one of {DECOMPOSITIONS}, got {decomposition!r}")
     if size is not None and scale is not None:
         raise ValueError("size and scale both set the object's size: give one of them")
-    mesh = trimesh.load(path, force="mesh")
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as error:  # whatever trimesh's parsers raise on a file they cannot read
+        raise ValueError(
+            f"path must hold a readable triangle mesh, but {str(path)!r} is not one "
+            f"({type(error).__name__}: {error})"
+        ) from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"path must hold a triangle mesh, got nothing usable from {str(path)!r}")
     if size is None:
@@ -300,6 +310,12 @@ def assemble(
     lift = 0.0 if origin_height is None else size[2] / 2 - origin_height
     offset = np.array([0.0, 0.0, lift])
     fitted = tuple(convex((p.vertices - (low + high) / 2) * scale + offset) for p in parts)
+    smallest = min(float(part.volume) for part in fitted)
+    if smallest < MIN_PART_VOLUME:
+        raise ValueError(
+            f"object {name!r} is too small or too thin for MuJoCo: a convex part of it encloses "
+            f"{smallest:.3g} m³, less than {MIN_PART_VOLUME:g} m³; give it a larger size"
+        )
     centre, inertia = _union_mass_properties(fitted, mass)
     return ObjectMesh(name=name, parts=fitted, mass=mass, inertia=inertia, centre_of_mass=centre)
 

@@ -16,7 +16,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from torchcontact.contacts import Contacts
-from torchcontact.validation import register
+from torchcontact.validation import check_shape, register
 
 
 def _log_positive(name: str, value: float) -> float:
@@ -142,6 +142,8 @@ class StateNetwork(Parameterization):
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
         if q is None:
             raise ValueError("q is required by StateNetwork: pass q=(..., nq) to the model")
+        nq = self.net[0].in_features
+        check_shape("q", q, f"(..., {nq})", q.dim() >= 1 and q.shape[-1] == nq)
         rows = contacts.slots * facets
         if rows != self.net[-1].out_features:
             raise ValueError(

@@ -90,6 +90,12 @@ class QuasiDynamic(nn.Module):
         order = torch.tensor(object_dofs + robot_dofs)
         self.register_buffer("object_metric", metric)
         self.register_buffer("robot_stiffness", stiffness)
+        force = torch.as_tensor(object_force)
+        if force.dim() == 1 and force.shape[0] != n_o:
+            raise ValueError(
+                f"object_metric and object_force must have one entry per object coordinate "
+                f"each, got {n_o} and {force.shape[0]}"
+            )
         self.register_buffer("object_force", _vector("object_force", object_force, n_o))
         self.register_buffer("_from_blocks", torch.argsort(order), persistent=False)
         # the object's rows in v, kept as a tensor: deriving them per call (argsort, tolist)

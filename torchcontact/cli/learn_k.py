@@ -79,6 +79,7 @@ from torchcontact.results import (
     write_csv,
     write_json,
 )
+from torchcontact.shapes import load_object
 from torchcontact.shipped import models_dir
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
@@ -322,7 +323,8 @@ def _check_scene(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         args.objects = ["cube"]
         return
     env = environment(args.scene)
-    args.object = args.object or DEFAULT_OBJECTS.get(args.scene, "all")
+    if args.object is None:
+        args.object = DEFAULT_OBJECTS.get(args.scene, "all")
     objects = []
     for piece in args.object.split(","):
         try:
@@ -331,6 +333,12 @@ def _check_scene(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
             parser.error(str(error))
         objects += [obj for _, obj in pairs]
     args.objects = list(dict.fromkeys(objects))
+    for obj in args.objects:  # read each mesh file once, before anything is collected
+        if is_mesh_file(obj):
+            try:
+                load_object(obj, decomposition="hull")
+            except ValueError as error:
+                parser.error(f"--object {obj!r} must be a usable mesh file: {error}")
 
 
 def _check_split(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
