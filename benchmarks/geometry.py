@@ -4,11 +4,12 @@ Agreement: random poses of a hull (a mesh's convex hull) against a plane, a sphe
 and a box, in penetration and apart up to 2 cm: the signed distance against
 ``mujoco.mj_geomDistance`` (worst and 99th percentile [mm]) and, apart by more than 1 mm, the
 normal against the direction of MuJoCo's witness points [deg]. Speed, on the TriFinger with
-the cube, one thread: ``Contacts`` at one state and at B states beside the MuJoCo detector,
-and the rollout (``torchcontact.geometry.rollout``, h = 0.1 s) in states per second beside
+the cube, one thread: ``Contacts`` at one state and at B states beside the MuJoCo detector
+(with ``--compile`` also ``torch.compile``d, ``fullgraph=True``: no graph break), and the
+rollout (``torchcontact.geometry.rollout``, h = 0.1 s) in states per second beside
 ``mujoco.rollout`` of the plant for the same simulated time (50 substeps of 2 ms a state).
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/geometry.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/geometry.py --compile
 
 writes JSON (default results/geometry/geometry.json).
 """
@@ -107,7 +108,7 @@ def _timed(call, repeat: int) -> float:
     return (time.perf_counter() - start) / repeat
 
 
-def speed(batches: list[int], steps: int) -> tuple[list[dict], list[dict]]:
+def speed(batches: list[int], steps: int, compile_: bool) -> tuple[list[dict], list[dict]]:
     env = HandEnv("trifinger", "cube")
     description = environment("trifinger")
     geometry = scene_geometry(env.detector, dtype=torch.float64)
@@ -123,6 +124,16 @@ def speed(batches: list[int], steps: int) -> tuple[list[dict], list[dict]]:
             ours = _timed(lambda: geometry(q_torch), 3)
         theirs = _timed(lambda: env.detector(q), 3)
         contacts_rows.append({"batch": batch, "torch_ms": ours * 1e3, "detector_ms": theirs * 1e3})
+    if compile_:
+        compiled = torch.compile(geometry, fullgraph=True, dynamic=False)
+        for row in contacts_rows:
+            q_torch = torch.tensor(np.tile(env.data.qpos, (row["batch"], 1)))
+            start = time.perf_counter()
+            with torch.no_grad():
+                compiled(q_torch)
+            row["compile_s"] = time.perf_counter() - start
+            with torch.no_grad():
+                row["torch_compiled_ms"] = _timed(lambda: compiled(q_torch), 3) * 1e3
     data = [mujoco.MjData(env.model)]
     state_size = mujoco.mj_stateSize(env.model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     substeps = round(0.1 / env.model.opt.timestep)
@@ -154,13 +165,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--poses", type=int, default=400, help="random poses per shape pair")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024])
     parser.add_argument("--steps", type=int, default=4, help="rollout steps of 0.1 s")
+    parser.add_argument("--compile", action="store_true", help="also time torch.compile'd Contacts")
     parser.add_argument("--out", type=Path, default=Path("results/geometry"))
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     rows = agreement(args.poses)
     for r in rows:
         print(r)
-    contacts, rollouts = speed(args.batches, args.steps)
+    contacts, rollouts = speed(args.batches, args.steps, args.compile)
     for r in contacts + rollouts:
         print(r)
     settings = vars(args) | {"out": str(args.out), "device": "cpu", "threads": 1}

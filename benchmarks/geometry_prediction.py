@@ -8,7 +8,9 @@ margin is the detector's, and the deepest contact's φ and normal row against th
 (detector) contacts. Then the paper's model rolled out 1 and 10 steps from recorded states
 under the recorded controls (``torchcontact.learn.evaluate.rollout_error``), with its
 contacts from three sources: frozen (detected at the window's first state and held), the
-MuJoCo detector at every predicted state, and the torch geometry at every predicted state.
+MuJoCo detector at every predicted state, and the torch geometry at every predicted state;
+once with the model's robot and once ``_object_only``, the robot reset to MuJoCo's after
+every step (the error of the contact model and its geometry alone).
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/geometry_prediction.py
 
@@ -122,9 +124,15 @@ def main(argv: list[str] | None = None) -> int:
                 "geometry": geometry,
             }
             for label, source in sources.items():
-                error = rollout_error(scene.model, transitions, source, horizon=horizon)
-                row[f"{label}_{horizon}_pos_mm"] = error["pos_mm"]
-                row[f"{label}_{horizon}_angle_deg"] = error["angle_deg"]
+                for robot in ("model", "recorded"):
+                    if isinstance(source, FrozenAtStart):
+                        source.calls = 0
+                    error = rollout_error(
+                        scene.model, transitions, source, horizon=horizon, robot=robot
+                    )
+                    key = f"{label}_{horizon}" + ("_object_only" if robot == "recorded" else "")
+                    row[f"{key}_pos_mm"] = error["pos_mm"]
+                    row[f"{key}_angle_deg"] = error["angle_deg"]
         print(row, flush=True)
         rows.append(row)
     settings = vars(args) | {"out": str(args.out)}

@@ -18,6 +18,9 @@ from __future__ import annotations
 
 import torch
 
+EDGE_POINTS = 4
+"""Edge pairs, the closest first, whose witnesses are offered as patch points."""
+
 TINY = 1e-12
 """Guards divisions by a squared length [m²]."""
 
@@ -187,11 +190,15 @@ class Separation:
         vertices_a: where b is solid, each of a's vertices against b, as
             :func:`points_to_solid` returns it (distance, surface point, b's outward normal);
             else None. vertices_b: b's vertices against a, likewise.
+        crossings: where both are solid, a's witnesses of the closest edge pairs
+            ``(..., P, k, 3)`` (see :func:`_edge_pairs`); else None.
     """
 
-    def __init__(self, distance, point_a, point_b, normal, vertices_a=None, vertices_b=None):
+    def __init__(
+        self, distance, point_a, point_b, normal, vertices_a=None, vertices_b=None, crossings=None
+    ):
         self.distance, self.point_a, self.point_b, self.normal = distance, point_a, point_b, normal
-        self.vertices_a, self.vertices_b = vertices_a, vertices_b
+        self.vertices_a, self.vertices_b, self.crossings = vertices_a, vertices_b, crossings
 
 
 def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
@@ -247,6 +254,7 @@ def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
         torch.where(o, deep_normal, apart_normal),
         vertices_a,
         vertices_b,
+        edge[3] if a.solid and b.solid else None,
     )
 
 
@@ -269,14 +277,20 @@ def _face_axis(heights, points, normals, smoothing, flip: bool):
 
 
 def _edge_pairs(edges_a, edges_b, smoothing):
-    """The closest pair of edges: distance ``(..., P)`` and witnesses ``(..., P, 3)``."""
+    """The closest pair of edges: distance ``(..., P)`` and witnesses ``(..., P, 3)``; then
+    the witnesses on a's edges of the :data:`EDGE_POINTS` closest pairs ``(..., P, k, 3)``
+    (where two faces rest on each other, the corners of their overlap that are neither's
+    vertex: edge crossings)."""
     c1, c2 = closest_on_segments(
         edges_a[..., :, None, 0, :], edges_a[..., :, None, 1, :],
         edges_b[..., None, :, 0, :], edges_b[..., None, :, 1, :],
     )  # fmt: skip
     gaps = safe_norm(c2 - c1).flatten(-2)
     gap, weights = select(gaps, -1, smoothing)
-    return gap, pick(weights, c1.flatten(-3, -2), -1), pick(weights, c2.flatten(-3, -2), -1)
+    witnesses = c1.flatten(-3, -2)
+    nearest = gaps.topk(min(EDGE_POINTS, gaps.shape[-1]), -1, largest=False).indices
+    crossings = witnesses.gather(-2, nearest.unsqueeze(-1).expand(*nearest.shape, 3))
+    return gap, pick(weights, witnesses, -1), pick(weights, c2.flatten(-3, -2), -1), crossings
 
 
 def _edge_axes(a: Core, b: Core, smoothing):

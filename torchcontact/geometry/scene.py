@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from torchcontact.contacts import PAD_DISTANCE, Contacts
-from torchcontact.geometry.distance import Core, core_separation, safe_norm
+from torchcontact.geometry.distance import Core, core_separation, points_to_solid, safe_norm
 from torchcontact.geometry.kinematics import BodyTree
 from torchcontact.geometry.shapes import Shape, as_tensor
 
@@ -230,6 +230,12 @@ class _Group(torch.nn.Module):
             normal.append(outward)
             surface_a.append(surface)
             surface_b.append(b.vertices)
+        if main.crossings is not None:
+            distance, surface, outward = points_to_solid(main.crossings, b, smoothing)
+            phi.append(distance)
+            normal.append(-outward)
+            surface_a.append(main.crossings)
+            surface_b.append(surface)
         normal = torch.cat(normal, -2)
         phi = torch.cat(phi, -1) - self.radius.unsqueeze(-1)
         ra = self.radius_a[:, None, None]
