@@ -231,3 +231,22 @@ def test_rollout_reaches_controls_and_stiffness():
     stiffness = next(model.parameters(), None)
     if stiffness is not None and stiffness.grad is not None:
         assert torch.isfinite(stiffness.grad).all()
+
+
+def test_a_support_ends_at_its_edge():
+    """A box half over the edge of a box support: the corners above the support touch it,
+    the corners beyond its edge have nothing under them (φ > 0: no row pushes them)."""
+    from torchcontact.geometry import BodyTree, Joint, Pair, SceneGeometry
+
+    joints = [Joint(1, "free", (0, 0, 1), (0, 0, 0), 0, 0)]
+    unturned = torch.tensor([[1.0, 0, 0, 0]] * 3, dtype=torch.float64)
+    tree = BodyTree([0, 0, 0], torch.zeros(3, 3, dtype=torch.float64), unturned, joints, 7, 6)
+    palm = Shape.box([0.05, 0.05, 0.01], position=(0, 0, -0.01))
+    cube = Shape.box([0.02, 0.02, 0.02])
+    geometry = SceneGeometry(tree, [cube, palm], [1, 2], [Pair(0, 1, 0.5)], slots=8, margin=0.0)
+    q = torch.tensor([0.05, 0.0, 0.0199, 1, 0, 0, 0], dtype=torch.float64)  # centred on the edge
+    contacts = geometry(q)
+    touching = contacts.position[contacts.active]
+    assert len(touching) >= 2
+    assert (touching[:, 0] <= 0.05 + 1e-9).all()  # every touching point lies over the palm
+    assert (contacts.phi[contacts.active] < 0).all()
