@@ -246,10 +246,77 @@ PARSER_ERRORS = [
 ]
 
 
+PARSER_ERRORS += [
+    (["run", "fingertips", "--max-iter", "0"], "--max-iter must be >= 1, got 0"),
+    (["run", "fingertips", "--memory", "0"], "--memory must be >= 1, got 0"),
+    (["run", "fingertips", "--horizon", "0"], "--horizon must be >= 1, got 0"),
+    (["run", "fingertips", "--relaxation", "-1"], "--relaxation must be positive"),
+    (["run", "fingertips", "--model", "relaxed_qp", "--relaxation", "nan"], "--relaxation must"),
+    (["run", "trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts"),
+    (["run", "trifinger", "--hold-upright", "-1"], "--hold-upright must be a number >= 0"),
+    (["run", "trifinger", "--hold-approach", "0"], "--hold-approach must be a weight > 0"),
+    (["run", "trifinger", "--pose-stage", "-1"], "--pose-stage must be a weight >= 0"),
+    (["run", "trifinger", "--pose-stage-radius", "0"], "--pose-stage-radius must be a distance"),
+    (["run", "allegro", "--support-margin", "-1"], "--support-margin must be a distance >= 0"),
+    (["run", "trifinger", "--contact-spread", "-1"], "--contact-spread must be a number >= 0"),
+    (["run", "fingertips", "--model", "relaxed_qp", "--support-pass", "on"], "--support-pass on"),
+    (["run", "fingertips", "--model", "relaxed_qp", "--gaps", "propagated"], "--gaps propagated"),
+    (["run", "fingertips", "--learned", "/no/such.pt"], "--learned must be an existing checkpoint"),
+    (["run", "fingertips", "--robot", "x.xml"], "--robot is required by, and only for, the custom"),
+    (["run", "fingertips", "--dtype", "float16"], "argument --dtype: invalid choice: 'float16'"),
+    (["run", "fingertips", "--collision", "mesh"], "argument --collision: invalid choice"),
+    (["run", "fingertips", "--backend", "threads"], "argument --backend: invalid choice"),
+    (["run", "fingertips", "--address", "127.0.0.1:6379"], "address is for backend='ray'"),
+    (["run", "fingertips", "--cost", "none"], "argument --cost: invalid choice: 'none'"),
+    (["run", "fingertips", "--planner", "adam"], "argument --planner: invalid choice: 'adam'"),
+    (["run", "fingertips", "--stiffness", "abc"], "--stiffness must be 'shipped', 'paper' or a"),
+    (["run", "fingertips", "--object-mass", "0.1"], "are not for fingertips"),
+    (["run", "fingertips", "--learned", "x.pt", "--stiffness", "3"], "--learned replaces"),
+    (["run", "allegro", "--support", "off", "--support-margin", "0.01"], "--support-margin is for"),
+    (["run", "trifinger", "--object", "random:0"], "--object: random:N needs 1 <= N <= 100000"),
+    (["run", "trifinger", "--object", "random:5-2"], "--object: random:A-B needs A <= B"),
+    (["run", "trifinger", "--object", "/no/such/mesh.stl"], "--object must be an existing mesh"),
+    (["run", "fingertips", "--first-seed", "x"], "argument --first-seed: invalid int value"),
+    (["run", "fingertips", "--trials", "1.5"], "argument --trials: invalid int value: '1.5'"),
+    (["run", "trifinger", "--object-size", "-1"], "object size must be a positive finite number"),
+    (["run", "trifinger", "--object-scale", "0"], "object scale must be a positive finite number"),
+    (["run", "trifinger", "--object-friction", "-1"], "object friction must be a non-negative"),
+    (["run", "trifinger", "--object-size", "0.1", "--object-scale", "2"], "size and scale both"),
+    (["run", "fingertips", "--support", "on"], "objects rest on the ground, not on a body"),
+    (["run", "fingertips", "--trials", "100000000"], "--trials must be at most 1000000"),
+    (["run", "fingertips", "--stiffness", "1e30"], "a positive number at most 1e+09, got 1e30"),
+    (["compare", "a"], "the following arguments are required: b"),
+    (["compare", "a", "b", "c"], "unrecognized arguments: c"),
+    (["learn-k", "--steps", "x"], "argument --steps: invalid int value: 'x'"),
+    (["learn-k", "--steps", "0"], "--steps must be >= 1, got 0"),
+    (["learn-k", "--trajectories", "0"], "--trajectories must be >= 1, got 0"),
+    (["learn-k", "--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["learn-k", "--device", "tpu"], "--device must be cpu or cuda, got 'tpu'"),
+    (["learn-k", "--actions", "fly"], "argument --actions: invalid choice: 'fly'"),
+    (["learn-k", "--split", "halves"], "argument --split: invalid choice: 'halves'"),
+    (["learn-k", "--epochs", "0"], "--epochs must be >= 1, got 0"),
+    (["learn-k", "--batch-size", "0"], "--batch-size must be >= 1, got 0"),
+    (["learn-k", "--hidden", "0"], "--hidden must be >= 1, got 0"),
+    (["learn-k", "--patience", "0"], "--patience must be >= 1, got 0"),
+    (["learn-k", "--stiffness", "wave"], "argument --stiffness: invalid choice: 'wave'"),
+    (["learn-k", "--damping", "wave"], "argument --damping: invalid choice: 'wave'"),
+    (["learn-k", "--scene", "box_pushing", "--object", "teapot"], "are cube and push only"),
+    (["learn-k", "--scene", "box_pushing", "--actions", "mpc"], "--actions must be random for"),
+    (["learn-k", "--calibrate", "magic"], "--calibrate must name distinct factors"),
+    (["learn-k", "--workers", "0"], "--workers must be >= 1, got 0"),
+    (["learn-k", "--robot-weight", "-1"], "--robot-weight must be non-negative and finite"),
+    (["learn-k", "--loss-horizon", "0"], "--loss-horizon must be >= 1, got 0"),
+    (["learn-k", "--residual", "-1"], "--residual must be a non-negative integer, got -1"),
+    (["learn-k", "--no-such-option"], "unrecognized arguments: --no-such-option"),
+    (["learn-k", "--object", ""], "--object must be one of"),
+]
+
+
 @pytest.mark.parametrize("argv, message", PARSER_ERRORS)
-def test_a_command_line_error_is_one_line_and_points_to_help(capsys, argv, message):
+def test_a_command_line_error_is_one_line_and_points_to_help(tmp_path, capsys, argv, message):
     job = argv[0]
-    last = _refused(argv, capsys, job, "")
+    out = [] if job == "compare" else ["--out", str(tmp_path / "out")]
+    last = _refused([*argv, *out], capsys, job, "")
     assert message in last and last.endswith(f"(see torchcontact {job} --help)")
     assert "usage:" not in last
 

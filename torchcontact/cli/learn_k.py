@@ -230,8 +230,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     positive = ("hidden", "epochs", "batch_size", "patience", "horizon", "stride", "workers")
+    positive += ("trajectories", "steps")
     for name in (*positive, "splits", "loss_horizon"):
-        if getattr(args, name) < 1:
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     try:
         check_backend(args.workers, args.backend, args.address)
