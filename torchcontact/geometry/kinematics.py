@@ -89,7 +89,6 @@ class BodyTree(torch.nn.Module):
         self.joints = tuple(joints)
         self.nq, self.nv = int(nq), int(nv)
         self.register_buffer("offset_position", offset_position.clone())
-        self.register_buffer("offset_quaternion", offset_quaternion.clone())
         axes = offset_position.new_tensor([j.axis for j in joints]).reshape(-1, 3)
         self.register_buffer("joint_axis", axes)
         anchors = offset_position.new_tensor([j.anchor for j in joints]).reshape(-1, 3)
