@@ -31,6 +31,14 @@ from torchcontact.model import ComplementarityFree, ContactModel, contact_model
 from torchcontact.mpc import planners
 from torchcontact.mpc.background import BackgroundCompile, graph_key
 from torchcontact.mpc.planners import LBFGS, Objective, Planner
+from torchcontact.mpc.sources import (
+    MOVING,
+    ContactsAt,
+    FrozenAlongPlan,
+    anchor_states,
+    redetected,
+)
+from torchcontact.sim.geometry import scene_geometry
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import QuasiDynamic
 from torchcontact.validation import check_finite, check_shape, validate_args
@@ -85,8 +93,11 @@ class ContactImplicitMPC:
         compile: compile the objective (traced into the planner where the planner and the
             model allow; the first call compiles, cached on disk after that).
         dtype: of the solve.
-        gaps: ``"frozen"`` or ``"propagated"`` distances over the horizon, see
-            :data:`~torchcontact.environments.presets.GAPS`.
+        gaps: where the rollout's contacts come from over the horizon, one of
+            :data:`~torchcontact.environments.presets.GAPS` (:mod:`~torchcontact.mpc.sources`).
+        contacts_at: contacts at any states ``q (..., nq)``, for the sources that move with
+            the plan: the plant's detector for ``"redetect"``, a differentiable torch function
+            (:class:`~torchcontact.geometry.SceneGeometry`) for ``"live"``; unused otherwise.
         background_compile: with ``compile``, compile each new graph in a child process
             and plan eagerly until it is ready, instead of waiting for it; a graph this
             machine has compiled before is loaded at once (see
@@ -113,6 +124,7 @@ class ContactImplicitMPC:
         gaps: str = "frozen",
         background_compile: bool = False,
         residual_plan: str = "fixed",
+        contacts_at: ContactsAt | None = None,
     ):
         if residual_plan not in RESIDUAL_PLANS:
             raise ValueError(
@@ -126,6 +138,14 @@ class ContactImplicitMPC:
             raise ValueError(f"model must be a ContactModel, got {type(model).__name__}")
         if gaps not in GAPS:
             raise ValueError(f"gaps must be one of {GAPS}, got {gaps!r}")
+        if gaps in MOVING and contacts_at is None:
+            raise ValueError(f"gaps={gaps!r} needs contacts_at, the contacts at any state q")
+        if gaps in MOVING and not isinstance(model, ComplementarityFree):
+            raise ValueError(
+                f"gaps={gaps!r} needs the complementarity-free model (a QP step is solved "
+                f"at one set of rows), got a {type(model).__name__}"
+            )
+        self.contacts_at = contacts_at
         self.system = system.to(dtype)
         self.model = model.to(dtype)
         if self.carries_momentum and not isinstance(model, ComplementarityFree):
@@ -204,6 +224,11 @@ class ContactImplicitMPC:
         calibration = getattr(model, "calibration", None)
         if calibration is not None:
             system = calibration.apply(system)
+        contacts_at = None
+        if settings.gaps == "redetect":
+            contacts_at = plant.detector
+        elif settings.gaps == "live":
+            contacts_at = scene_geometry(plant.detector, dtype=dtype)
         return cls(
             system,
             model,
@@ -220,6 +245,7 @@ class ContactImplicitMPC:
             gaps=settings.gaps,
             background_compile=background_compile,
             residual_plan=residual_plan,
+            contacts_at=contacts_at,
         )
 
     def reset(self) -> None:
@@ -299,7 +325,8 @@ class ContactImplicitMPC:
         residual, :meth:`residual_corrections`); without them a model's residual is applied
         at each planned state.
         """
-        if self.carries_momentum or (self.residual is not None and corrections is None):
+        chained = self.carries_momentum or self.gaps in MOVING
+        if chained or (self.residual is not None and corrections is None):
             return self._chained_rollout(q0, controls, frozen, moved, corrections)[0]
         Q, b = self.system(controls)
         states = [q0.expand(*controls.shape[:-2], -1)]
@@ -320,12 +347,14 @@ class ContactImplicitMPC:
         """:meth:`rollout` step by step, for a system carrying momentum (the steps chained
         through the object's displacement) or a model with a residual (applied at each
         planned state unless ``corrections`` are given), and φ̃ with propagated gaps. Returns
-        the states and the residual's corrections ``(..., T, nv)`` it applied (None without)."""
+        the states and the residual's corrections ``(..., T, nv)`` it applied (None without).
+        The contacts that move with the plan (:data:`~torchcontact.mpc.sources.MOVING`) are
+        rolled out here too, each step's frozen step from :meth:`_step`."""
         states, applied = [q0.expand(*controls.shape[:-2], -1)], []
         for t in range(self.horizon):
             options = {"object_displacement": moved} if self.carries_momentum else {}
             Q, b = self.system(controls[..., t, :], **options)
-            v = frozen.velocity(Q, b)
+            v = self._step(frozen, t, states[-1]).velocity(Q, b)
             if corrections is not None:
                 v = _corrected(v, corrections, t)
             elif self.residual is not None:
@@ -338,6 +367,16 @@ class ContactImplicitMPC:
                 frozen = frozen.advance_gaps(v)
         applied = torch.stack(applied, dim=-2) if applied else None
         return torch.stack(states, dim=-2), applied
+
+    def _step(self, frozen, t: int, q: torch.Tensor):
+        """The frozen step of horizon step ``t`` at the planned states ``q (..., nq)``: the
+        one frozen at the real state, or the source's (:mod:`~torchcontact.mpc.sources`)."""
+        if isinstance(frozen, FrozenAlongPlan):
+            return frozen.at(t, q, self.layout)
+        if self.gaps == "live" and t > 0:
+            options = {"without_residual": True} if self.residual is not None else {}
+            return self.model.freeze(self.contacts_at(q), self.h, q, **options)
+        return frozen
 
     def residual_corrections(self, q0, controls, frozen, previous=None) -> torch.Tensor:
         """The residual's corrections ``(T, nv)`` [m/s, rad/s] along ``controls (T, n_u)``
@@ -449,9 +488,12 @@ class ContactImplicitMPC:
         observe = getattr(self.cost, "observe", None)
         if observe is not None:  # a cost that depends on the contacts at the plan's start
             observe(contacts)
-        contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         target_p, target_quat = target_p.to(self.dtype), target_quat.to(self.dtype)
         targets = (target_p, target_quat) + self._previous(q)
+        if self.gaps == "redetect":  # the solve's state: the (T, nq) anchors, the real one first
+            q = anchor_states(self, q, contacts, self._warm.reshape(self.horizon, -1))
+            contacts = redetected(self.contacts_at, q, contacts)
+        contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
         if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out
             targets += (self._warm.reshape(self.horizon, -1).clone(),)
         inputs = (q, contacts, targets, self._warm.clone())
@@ -520,6 +562,8 @@ class ContactImplicitMPC:
         ``targets``."""
         with torch.no_grad():
             frozen = self.freeze(q, contacts, compiled)
+            if q.dim() == 2:  # "redetect": a step frozen at each of the (T, nq) anchors
+                frozen, q = FrozenAlongPlan(frozen, q), q[0]
             if not self.fixes_residual:
                 return (q, frozen, *targets)
             *targets, warm = targets

@@ -201,8 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--gaps",
         choices=GAPS,
         default=None,
-        help="contact distances over the horizon: frozen (the paper's Algorithm 1) or "
-        "propagated along the frozen normal rows (paper model only); default the preset's",
+        help="where the plan's contacts come from over the horizon: frozen (the paper's "
+        "Algorithm 1), propagated along the frozen normal rows, redetect (MuJoCo at the warm "
+        "start's predicted states) or live (the torch geometry at every planned state); all "
+        "but frozen for the paper model only; default the preset's",
     )
     parser.add_argument(
         "--model",
@@ -305,8 +307,8 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         )
     if qp and args.support_pass == "on":
         parser.error("--support-pass on is for the paper model, not relaxed_qp")
-    if qp and args.gaps == "propagated":
-        parser.error("--gaps propagated is for the paper model; relaxed_qp plans with frozen gaps")
+    if qp and args.gaps not in (None, "frozen"):
+        parser.error(f"--gaps {args.gaps} is for the paper model; relaxed_qp plans with frozen gaps")
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):

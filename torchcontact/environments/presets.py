@@ -15,14 +15,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-GAPS = ("frozen", "propagated")
-"""How the MPC's model treats the contact distances φ̃ over the horizon, by name.
+GAPS = ("frozen", "propagated", "redetect", "live")
+"""Where the MPC's rollout takes its contacts from over the horizon, by name.
 
-``"frozen"``: the paper's Algorithm 1, every step of the rollout sees the distances detected at
+``"frozen"``: the paper's Algorithm 1, every step of the rollout sees the contacts detected at
 the real state. ``"propagated"``: J̃ stays frozen, but each step's distance follows the motion
 the model itself predicts, to first order along the frozen normal rows,
 ``φ_{t+1} = φ_t + h Jⁿ v_t``: a tip the plan moves off the object stops pushing it later in the
-horizon, and one it presses in pushes harder (complementarity-free model only)."""
+horizon, and one it presses in pushes harder. ``"redetect"``: MuJoCo detects again at each
+state the warm start predicts, one frozen set per step. ``"live"``: the torch contact geometry
+at every planned state, inside the gradient (:mod:`~torchcontact.mpc.sources`). All but
+``"frozen"`` need the complementarity-free model."""
 
 
 @dataclass(frozen=True)
@@ -35,8 +38,8 @@ class MPCSettings:
         horizon: T, model steps planned ahead.
         dtype: ``"float32"`` or ``"float64"``, of the solve.
         compile: ``torch.compile`` the objective and optimizer steps (else eager).
-        gaps: ``"frozen"`` (the paper's) or ``"propagated"`` contact distances over the
-            horizon, see :data:`GAPS`.
+        gaps: where the rollout's contacts come from over the horizon, one of :data:`GAPS`
+            (``"frozen"``: the paper's).
     """
 
     max_iter: int = 30
