@@ -6,11 +6,13 @@ command gain and stiffness, the object metric ε, μ, optionally the object's mo
 is fitted. The loss is the object pose error against MuJoCo, weighted as in the MPC's final
 cost, ``w_p‖p − p*‖² + w_q(1 − ⟨q, q*⟩²)`` (the paper's w_p = 500 or 100, w_q = 5): after one
 step, or the mean over H steps rolled out with the contacts frozen at each window's first
-state, as the MPC plans (:class:`StepData` holds the windows). Adam on mini-batches, early
-stopping on a validation set, the best state kept. :func:`fit` takes plain tensors;
-:func:`fit_steps` takes prepared windows. :mod:`torchcontact.checkpoint` stores the fitted
-model with the :class:`~torchcontact.checkpoint.FitConfig` and dataset metadata that rebuild
-it.
+state, as the MPC plans (:class:`StepData` holds the windows), or re-evaluated at every
+predicted state by each object's torch contact geometry
+(:class:`~torchcontact.geometry.SceneGeometry`, ``FitConfig.loss_contacts="geometry"``).
+Adam on mini-batches, early stopping on a validation set, the best state kept. :func:`fit`
+takes plain tensors; :func:`fit_steps` takes prepared windows. :mod:`torchcontact.checkpoint`
+stores the fitted model with the :class:`~torchcontact.checkpoint.FitConfig` and dataset
+metadata that rebuild it.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 
 import torch
@@ -66,6 +69,10 @@ class StepData:
             ``(N, H, n_r)`` recorded after each step.
         object_rows: ``(n_obj·6,)`` the objects' indices in v; robot_rows: ``(n_r,)`` the
             robot's (one coordinate per velocity: hinge and slide joints).
+        objects: ``(N,)`` each window's object, an index into ``meta["objects"]`` (0 for
+            plain tensors): which object's geometry sees its predicted states.
+        object_q: ``(n_obj·7,)`` the objects' poses' indices in q; robot_q: ``(n_r,)`` the
+            robot's coordinates'.
         h: the model's time step [s].
     """
 
@@ -82,6 +89,9 @@ class StepData:
     robot_target: torch.Tensor
     object_rows: torch.Tensor
     robot_rows: torch.Tensor
+    objects: torch.Tensor
+    object_q: torch.Tensor
+    robot_q: torch.Tensor
     h: float
 
     @classmethod
@@ -115,6 +125,7 @@ class StepData:
             meta["joints"],
             dtype,
             moved,
+            objects,
         )
 
     @classmethod
@@ -158,11 +169,12 @@ class StepData:
             moved = displacement[:, v_index.flatten()]
         Q, b0, B = affine_system(system)  # float64 whatever the system's dtype
         rows = (q, contacts, u[:, None], q_next[:, None], Q.expand(n, -1), b0.expand(n, -1), B)
-        return cls._build(*rows, float(h), joints, dtype, moved)
+        objects = torch.zeros(n, dtype=torch.long)
+        return cls._build(*rows, float(h), joints, dtype, moved, objects)
 
     @classmethod
     def _build(
-        cls, q, contacts, u, q_next, metric, bias, B, h, joints, dtype, displacement
+        cls, q, contacts, u, q_next, metric, bias, B, h, joints, dtype, displacement, objects
     ) -> StepData:
         q_index, v_index = object_indices(joints)
         layout = JointLayout(joints)
@@ -183,6 +195,9 @@ class StepData:
             robot_target=q_next[:, :, robot_q].to(dtype),
             object_rows=v_index.flatten(),
             robot_rows=_complement(v_index.flatten(), layout.nv),
+            objects=objects.to(device=q.device, dtype=torch.long),
+            object_q=q_index.flatten(),
+            robot_q=robot_q,
             h=h,
         )
 
@@ -195,16 +210,14 @@ class StepData:
 
     def select(self, index: torch.Tensor) -> StepData:
         """Windows ``index`` (long indices or a bool mask)."""
-        shared = ("contacts", "h", "B", "object_rows", "robot_rows")
+        shared = ("contacts", "h", "B", "object_rows", "robot_rows", "object_q", "robot_q")
         tensors = {
             f.name: getattr(self, f.name)[index] for f in fields(self) if f.name not in shared
         }
         return StepData(
             contacts=self.contacts[index],
             h=self.h,
-            B=self.B,
-            object_rows=self.object_rows,
-            robot_rows=self.robot_rows,
+            **{name: getattr(self, name) for name in shared[2:]},
             **tensors,
         )
 
@@ -250,9 +263,25 @@ def step_terms(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor
     return model_terms(model, metric, bias, data.B, data.u, data.object_rows)
 
 
-def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, torch.Tensor]:
+Geometry = Callable[[torch.Tensor], Contacts]
+"""An object's contact geometry: ``q (..., nq) ↦`` :class:`Contacts` of batch shape ``...``,
+differentiable in q (a :class:`~torchcontact.geometry.SceneGeometry`)."""
+
+Geometries = Sequence[Geometry] | Mapping[int, Geometry]
+"""Each object's geometry by its index in ``meta["objects"]`` (:attr:`StepData.objects`)."""
+
+
+def predict(
+    model: ComplementarityFree, data: StepData, geometries: Geometries | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Object poses ``(N, H, n_obj, 7)`` and robot coordinates ``(N, H, n_r)`` after each
-    step of ``data``'s windows under ``model``, contacts frozen at each window's first state."""
+    step of ``data``'s windows under ``model``, contacts frozen at each window's first state.
+
+    With ``geometries``, every step after a window's first sees the contacts of its object's
+    geometry at the state predicted so far (the predicted object poses and robot coordinates
+    put into the window's first q; differentiable through the geometry), padded to
+    ``data``'s slots, with K and D at that state; the first step keeps the recorded contacts.
+    """
     Q, b = step_terms(model, data)
     frozen = model.freeze(data.contacts, data.h, data.q, without_residual=True)
     residual = model.residual
@@ -260,9 +289,13 @@ def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, t
     layout = JointLayout(["free"] * n_obj)
     pose, robot, poses, robots = data.pose.flatten(-2), data.robot, [], []
     moved, q = data.displacement, data.q
+    groups = None if geometries is None else _object_groups(data, geometries)
     for t in range(data.horizon):
         terms = carried(model, Q[:, 0], b[:, t], moved, data.object_rows)
-        v = frozen.velocity(*terms)
+        if groups is None or t == 0:
+            v = frozen.velocity(*terms)
+        else:
+            v = _geometry_velocity(model, data, groups, q, *terms)
         if residual is not None:  # the residual sees each step's state, the contacts stay
             v = residual(q, terms[1], v, data.h)
         moved = data.h * v[:, data.object_rows]
@@ -271,9 +304,46 @@ def predict(model: ComplementarityFree, data: StepData) -> tuple[torch.Tensor, t
         if residual is not None:
             q = q.index_copy(-1, residual.object_q.flatten(), pose)
             q = q.index_copy(-1, residual.other_q, robot)
+        elif groups is not None:
+            q = q.index_copy(-1, data.object_q, pose).index_copy(-1, data.robot_q, robot)
         poses.append(pose.unflatten(-1, (n_obj, 7)))
         robots.append(robot)
     return torch.stack(poses, dim=1), torch.stack(robots, dim=1)
+
+
+def _object_groups(data: StepData, geometries: Geometries) -> list[tuple[Geometry, torch.Tensor]]:
+    """``(geometry, rows)`` per object among ``data``'s windows: its geometry and the indices
+    of its windows."""
+    groups = []
+    for index in torch.unique(data.objects).tolist():
+        rows = torch.nonzero(data.objects == index).flatten()
+        groups.append((_geometry(geometries, index), rows))
+    return groups
+
+
+def _geometry(geometries: Geometries, index: int) -> Geometry:
+    """Object ``index``'s geometry, or ``ValueError`` naming the missing object."""
+    if isinstance(geometries, Mapping):
+        if index not in geometries:
+            raise ValueError(f"geometries must hold object {index}, got {sorted(geometries)}")
+        return geometries[index]
+    if not 0 <= index < len(geometries):
+        raise ValueError(f"geometries must hold object {index}, got {len(geometries)} objects")
+    return geometries[index]
+
+
+def _geometry_velocity(model, data: StepData, groups, q, Q, b) -> torch.Tensor:
+    """``v⁺ (N, nv)`` at states ``q (N, nq)``: per object, its geometry's contacts at its
+    windows' states, the step frozen there, its velocity under ``Q, b (N, nv)``; the objects'
+    velocities put back in the windows' order (each geometry has its own slot count)."""
+    v = b.new_zeros(b.shape)
+    Q = Q.expand(b.shape[0], *Q.shape[1:])
+    for geometry, rows in groups:
+        states = q[rows]
+        contacts = geometry(states).padded(data.contacts.slots)
+        step = model.freeze(contacts, data.h, states, without_residual=True)
+        v = v.index_copy(0, rows, step.velocity(Q[rows], b[rows]))
+    return v
 
 
 def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:
@@ -281,11 +351,18 @@ def predict_poses(model: ComplementarityFree, data: StepData) -> torch.Tensor:
     return predict(model, data)[0]
 
 
-def window_loss(model: ComplementarityFree, data: StepData, weights, robot_weight: float = 0.0):
+def window_loss(
+    model: ComplementarityFree,
+    data: StepData,
+    weights,
+    robot_weight: float = 0.0,
+    geometries: Geometries | None = None,
+):
     """:func:`pose_loss` of the predicted objects, plus ``robot_weight`` times the mean squared
     error of the robot's coordinates [m² or rad²] (the only term that sees the robot's
-    stiffness: unopposed by contact, its command gain alone moves it)."""
-    poses, robot = predict(model, data)
+    stiffness: unopposed by contact, its command gain alone moves it). ``geometries``: the
+    contacts re-evaluated along the windows (:func:`predict`)."""
+    poses, robot = predict(model, data, geometries)
     loss = pose_loss(poses, data.target, weights)
     if robot_weight:
         loss = loss + robot_weight * (robot - data.robot_target).square().sum(-1).mean()
@@ -333,12 +410,15 @@ class FitResult:
     seconds: float
 
 
-def _evaluate_loss(model, data: StepData, weights, robot_weight, batch: int = 8192) -> float:
+def _evaluate_loss(
+    model, data: StepData, weights, robot_weight, batch: int = 8192, geometries=None
+) -> float:
     total = 0.0
     with torch.no_grad():
         for start in range(0, len(data), batch):
             part = data.select(torch.arange(start, min(start + batch, len(data))))
-            total += float(window_loss(model, part, weights, robot_weight)) * len(part)
+            loss = window_loss(model, part, weights, robot_weight, geometries)
+            total += float(loss) * len(part)
     return total / max(len(data), 1)
 
 
@@ -349,29 +429,59 @@ def fit_steps(
     weights: tuple[float, float],
     config: FitConfig,
     progress: bool = True,
+    geometries: Geometries | None = None,
 ) -> FitResult:
     """Train ``model``'s parameters on ``train`` by Adam on :func:`window_loss` mini-batches,
     in ``train``'s dtype and on its device.
 
     Stops after ``config.epochs`` or ``config.patience`` epochs without a better loss on
-    ``val``; the model is left holding its best validation state.
+    ``val``; the model is left holding its best validation state. ``geometries``: each
+    object's contact geometry (by :attr:`StepData.objects`), required with
+    ``config.loss_contacts == "geometry"`` and refused otherwise; those that are modules are
+    moved to ``train``'s dtype and device.
     """
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"train and val must be non-empty, got {len(train)} and {len(val)}")
     parameters = [p for p in model.parameters() if p.requires_grad]
     if not parameters:
         raise ValueError("model has no learnable parameters")
+    geometries = _fit_geometries(config, geometries, train, val)
     model = model.to(device=train.q.device, dtype=train.q.dtype)
+    robot_weight = config.robot_weight
     with validate_args(False):
         return adam_with_early_stopping(
             model,
             torch.optim.Adam(parameters, lr=config.lr),
             len(train),
-            lambda rows: window_loss(model, train.select(rows), weights, config.robot_weight),
-            lambda: _evaluate_loss(model, val, weights, config.robot_weight),
+            lambda rows: window_loss(model, train.select(rows), weights, robot_weight, geometries),
+            lambda: _evaluate_loss(model, val, weights, robot_weight, geometries=geometries),
             config,
             progress,
         )
+
+
+def _fit_geometries(config: FitConfig, geometries, train: StepData, val: StepData):
+    """``geometries`` checked against ``config.loss_contacts`` and the windows' objects, the
+    modules among them in ``train``'s dtype and on its device (None for frozen contacts)."""
+    if config.loss_contacts != "geometry":
+        if geometries is not None:
+            raise ValueError(
+                f"geometries are used only with config.loss_contacts 'geometry', got "
+                f"{config.loss_contacts!r}"
+            )
+        return None
+    if geometries is None:
+        raise ValueError(
+            "config.loss_contacts is 'geometry': geometries must give each object's contact "
+            "geometry"
+        )
+    kw = {"device": train.q.device, "dtype": train.q.dtype}
+    items = geometries.items() if isinstance(geometries, Mapping) else enumerate(geometries)
+    moved = {k: g.to(**kw) if isinstance(g, torch.nn.Module) else g for k, g in items}
+    for data in (train, val):
+        for index in torch.unique(data.objects).tolist():
+            _geometry(moved, index)
+    return moved
 
 
 def adam_with_early_stopping(

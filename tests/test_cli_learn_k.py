@@ -1,5 +1,6 @@
 """``torchcontact learn-k``: a tiny end-to-end run writes its results and headline JSON."""
 
+import argparse
 import math
 
 import pytest
@@ -9,6 +10,7 @@ from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import learn_k, main
 from torchcontact.cli.learn_k import RESULTS_LABEL_LIMIT, parse_args
+from torchcontact.cli.split_store import split_digest
 from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
 
@@ -261,3 +263,50 @@ def test_residual_is_fitted_second_and_drives_the_mpc(tmp_path, capsys):
     assert trial["steps"] == 3
     planned = trial_model(TrialRecord.from_dict(trial).config, h=0.1)
     assert planned.residual is not None
+
+
+def test_loss_contacts_option_is_checked_and_frozen_keeps_the_old_digest(capsys):
+    args = parse_args(["--object", "cube"])
+    assert args.loss_contacts == "frozen"
+    with pytest.raises(SystemExit):
+        parse_args(["--object", "cube", "--loss-contacts", "geometry"])
+    err = capsys.readouterr().err
+    assert "--loss-contacts geometry needs --loss-horizon 2 or more" in err
+    with pytest.raises(SystemExit):
+        parse_args(["--object", "cube", "--loss-contacts", "detector", "--loss-horizon", "2"])
+    assert "--loss-contacts: invalid choice: 'detector'" in capsys.readouterr().err
+    # frozen: the digest of the options before the option existed, so old records are reused
+    before = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "loss_contacts"})
+    assert split_digest(learn_k.deciding_options(args), []) == split_digest(before, [])
+    geometry = parse_args(
+        ["--object", "cube", "--loss-contacts", "geometry", "--loss-horizon", "2"]
+    )
+    frozen = parse_args(["--object", "cube", "--loss-horizon", "2"])
+    assert split_digest(learn_k.deciding_options(geometry), []) != split_digest(
+        learn_k.deciding_options(frozen), []
+    )
+
+
+def test_tiny_run_with_the_geometry_in_the_loss(tmp_path):
+    """``--loss-contacts geometry``: the fit's record and checkpoint say so, and it is another
+    fit than the frozen one on the same data (its own split record)."""
+    options = (
+        "--scene trifinger --object cube --trajectories 3 --steps 8 --actions random "
+        "--horizon 3 --stride 2 --sweep 0.1 10 2 --epochs 2 --hidden 8 --no-progress "
+        "--splits 1 --loss-horizon 3"
+    )
+    argv = ["learn-k", *options.split(), "--out", str(tmp_path)]
+    results = tmp_path / "trifinger_cube"
+    assert main([*argv, "--loss-contacts", "geometry"]) == 0
+    geometry = read_json(results / "results.json")
+    assert geometry["splits"][0]["fit"]["loss_contacts"] == "geometry"
+    assert all(math.isfinite(geometry[key]) for key in HEADLINE[:-1])
+    _, config, _ = load_checkpoint(results / "model.pt")
+    assert config.loss_contacts == "geometry" and config.loss_horizon == 3
+    assert main(argv) == 0
+    frozen = read_json(results / "results.json")
+    assert frozen["splits"][0]["fit"]["loss_contacts"] == "frozen"
+    assert load_checkpoint(results / "model.pt")[1].loss_contacts == "frozen"
+    assert len(list((results / "splits").glob("*.pt"))) == 2
+    assert frozen["rollout10_err_learned"] != geometry["rollout10_err_learned"]
+    assert frozen["rollout10_err_paper_k"] == geometry["rollout10_err_paper_k"]  # same data

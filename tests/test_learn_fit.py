@@ -87,6 +87,8 @@ def test_plain_tensors_give_the_datasets_step_and_recover_a_known_stiffness(tran
     )
     torch.testing.assert_close(with_motion.displacement, stored.displacement)
     assert bool((plain.displacement == 0).all())  # no displacement given: at rest
+    assert bool((plain.objects == 0).all())  # plain rows: one object
+    torch.testing.assert_close(plain.objects, stored.objects)
     with pytest.raises(ValueError, match="displacement"):
         StepData.from_tensors(*rows, system, 0.1, meta["joints"], displacement=moved[:, :3])
     synthetic = _synthetic(transitions, 2.5)

@@ -41,6 +41,11 @@ DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
 """D: ``"paper"`` fixed 0.1·K, ``"none"``, ``"relative"`` a learned ratio·K, or its own
 learnable parameterization (started at 0.1 × the initial K)."""
 
+LOSS_CONTACTS = ("frozen", "geometry")
+"""The contacts of a multi-step loss's later steps: ``"frozen"`` those recorded at the window's
+first state, held (as the MPC plans); ``"geometry"`` re-evaluated at every predicted state by
+the object's torch contact geometry (:func:`~torchcontact.sim.geometry.scene_geometry`)."""
+
 CHECKPOINT_VERSION = 1
 
 
@@ -67,11 +72,18 @@ class FitConfig:
             :data:`~torchcontact.calibration.PARTS` and ``OPTIONAL``); empty: none, the model has no
             calibration.
         loss_horizon: steps of the training loss: 1 the one-step pose error, H > 1 the mean
-            pose error over H steps rolled out with the contacts frozen at the window's first
-            state, as the MPC plans.
+            pose error over H steps rolled out with the contacts of ``loss_contacts`` (by
+            default frozen at the window's first state, as the MPC plans).
         robot_weight: weight of the robot's coordinates' squared error in the loss [1/m² or
             1/rad²]; 0: the objects' pose error only (the robot's stiffness factor then has no
             gradient: unopposed, the command gain alone moves the robot).
+        residual: hidden units of an object residual fitted after K, D and the factors; 0:
+            none.
+        loss_contacts: the contacts of the loss's steps after a window's first, one of
+            :data:`LOSS_CONTACTS`: ``"frozen"`` (the window's first, held) or ``"geometry"``
+            (each object's geometry at every predicted state; needs ``loss_horizon`` > 1:
+            one step sees no new state). A checkpoint saved before the field loads as
+            ``"frozen"``, the only loss there was.
     """
 
     stiffness: str = "contact_network"
@@ -88,6 +100,7 @@ class FitConfig:
     loss_horizon: int = 1
     robot_weight: float = 0.0
     residual: int = 0
+    loss_contacts: str = "frozen"
 
     def __post_init__(self) -> None:
         if self.stiffness not in STIFFNESS_KINDS:
@@ -117,6 +130,15 @@ class FitConfig:
             )
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+        if self.loss_contacts not in LOSS_CONTACTS:
+            raise ValueError(
+                f"loss_contacts must be one of {LOSS_CONTACTS}, got {self.loss_contacts!r}"
+            )
+        if self.loss_contacts == "geometry" and self.loss_horizon == 1:
+            raise ValueError(
+                "loss_contacts 'geometry' needs a loss_horizon above 1 (one step sees no new "
+                "state), got loss_horizon 1"
+            )
 
 
 def _parameterization(kind: str, value: float, meta: dict, config: FitConfig) -> Parameterization:

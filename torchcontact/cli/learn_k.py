@@ -9,6 +9,8 @@ The pipeline::
         train, val, test = transitions.split_objects() # no object in two sets
         sweep = sweep_constant(grid, val, detectors)   # best constant K on val objects
         result = fit_steps(model, train, val, ...)     # K(q), D(q) and the system factors
+                                                       # (--loss-contacts geometry: each
+                                                       # object's torch geometry in the loss)
         evaluation = ... paper K, best K, learned      # 10-step rollouts on test objects
 
 Writes ``OUT/SCENE_OBJECTS/results.json`` (everything measured, per split),
@@ -34,6 +36,7 @@ import re
 import shlex
 import subprocess
 import sys
+from collections.abc import Mapping
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -43,6 +46,7 @@ from tqdm.auto import tqdm
 from torchcontact.calibration import MOMENTUM, OPTIONAL, PARTS
 from torchcontact.checkpoint import (
     DAMPING_KINDS,
+    LOSS_CONTACTS,
     STIFFNESS_KINDS,
     FitConfig,
     build_model,
@@ -81,6 +85,7 @@ from torchcontact.results import (
 )
 from torchcontact.shapes import load_object
 from torchcontact.shipped import models_dir
+from torchcontact.sim.geometry import scene_geometry
 
 DEFAULT_STEPS = {"fingertips": 120, "trifinger": 50, "allegro": 50, "box_pushing": 100}
 """Steps per trajectory by scene: the fingertips start 0.2 m from the object."""
@@ -175,6 +180,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     add("--loss-horizon", type=int, default=1, help="steps of the training loss's rollouts")
     add(
+        "--loss-contacts",
+        choices=LOSS_CONTACTS,
+        default="frozen",
+        help="contacts of the loss's steps after a window's first: frozen (those recorded at "
+        "its first state, as the MPC plans; default) or geometry (each object's torch contact "
+        "geometry at every predicted state; needs --loss-horizon 2 or more)",
+    )
+    add(
         "--residual",
         type=int,
         default=0,
@@ -256,6 +269,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.calibrate = DEFAULT_CALIBRATE.get(args.scene, PARTS)
     else:
         args.calibrate = () if args.calibrate == "none" else tuple(args.calibrate.split(","))
+    if args.loss_contacts == "geometry" and args.loss_horizon == 1:
+        parser.error(
+            "--loss-contacts geometry needs --loss-horizon 2 or more: one step sees no new state"
+        )
     _check_fit_options(parser, args)
     _check_scene(parser, args)
     args.steps = DEFAULT_STEPS[args.scene] if args.steps is None else args.steps
@@ -455,10 +472,12 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
         for name, part in (("train", train), ("val", val))
     }
     progress = not args.no_progress
+    geometries = None
+    if config.loss_contacts == "geometry":
+        geometries = object_geometries(detectors, meta["objects"], data["train"].q.dtype)
+    fit_model = functools.partial(fit_steps, progress=progress, geometries=geometries)
     contact_only = dataclasses.replace(config, residual=0)  # the residual comes second
-    result = fit_steps(
-        build_model(contact_only, meta), data["train"], data["val"], weights, config, progress
-    )
+    result = fit_model(build_model(contact_only, meta), data["train"], data["val"], weights, config)
     learned, extra, seconds = result.model, {}, result.seconds
     if config.residual:
         extra[WITHOUT_RESIDUAL] = copy.deepcopy(learned).cpu()
@@ -474,7 +493,7 @@ def run_split(transitions, detectors, seed: int, args: argparse.Namespace) -> di
     for key, change in ABLATIONS.items() if args.ablate else ():
         variant = dataclasses.replace(config, **change)
         model = build_model(variant, meta)
-        models[key] = fit_steps(model, data["train"], data["val"], weights, variant, progress).model
+        models[key] = fit_model(model, data["train"], data["val"], weights, variant).model
         models[key] = models[key].cpu()
     evaluation = evaluate_models(models, test, detectors, weights, args)
 
@@ -552,6 +571,17 @@ def object_detectors(args: argparse.Namespace) -> dict:
     return {obj: make_scene(args.scene, obj, args.task).plant.detector for obj in args.objects}
 
 
+def object_geometries(detectors, names: list[str], dtype: torch.dtype) -> list:
+    """Each object's torch contact geometry (:func:`~torchcontact.sim.geometry.scene_geometry`
+    of its detector, in ``dtype``), in the order of ``names`` (``meta["objects"]``: the
+    windows' object indices); ``detectors``: by name, or one for all."""
+    found = []
+    for name in names:
+        detector = detectors[name] if isinstance(detectors, Mapping) else detectors
+        found.append(scene_geometry(detector, dtype=dtype))
+    return found
+
+
 @dataclasses.dataclass(frozen=True)
 class _SplitJob:
     """One split fitted in a worker process, which reads the datasets itself."""
@@ -575,6 +605,15 @@ def _fit_split(job: _SplitJob) -> dict:
     return run_split(*_loaded[key], job.seed, args)
 
 
+def deciding_options(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` as :func:`~torchcontact.cli.split_store.split_digest` reads them: without
+    ``--loss-contacts`` at its default (frozen), so the records saved before the option
+    existed, whose fits were frozen, keep their digest and are reused."""
+    if args.loss_contacts != "frozen":
+        return args
+    return argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "loss_contacts"})
+
+
 def fit_splits(directories: list[Path], args: argparse.Namespace):
     """The datasets' transitions and every split's :func:`run_split` record, in split order.
 
@@ -583,7 +622,7 @@ def fit_splits(directories: list[Path], args: argparse.Namespace):
     at a time are fitted in spawned local processes of one thread each, each reading the
     datasets; every split is seeded, so the records match a serial run's."""
     transitions = load_transitions(directories, args)
-    digest = split_digest(args, directories)
+    digest = split_digest(deciding_options(args), directories)
     paths = [split_path(args.results, args.seed + i, digest) for i in range(args.splits)]
     splits = [load_split(path) for path in paths]
     missing = [index for index, split in enumerate(splits) if split is None]
