@@ -261,6 +261,7 @@ PARSER_ERRORS += [
     (["run", "trifinger", "--contact-spread", "-1"], "--contact-spread must be a number >= 0"),
     (["run", "fingertips", "--model", "relaxed_qp", "--support-pass", "on"], "--support-pass on"),
     (["run", "fingertips", "--model", "relaxed_qp", "--gaps", "propagated"], "--gaps propagated"),
+    (["run", "fingertips", "--model", "relaxed_qp", "--gaps", "live"], "--gaps live"),
     (["run", "fingertips", "--learned", "/no/such.pt"], "--learned must be an existing checkpoint"),
     (["run", "fingertips", "--robot", "x.xml"], "--robot is required by, and only for, the custom"),
     (["run", "fingertips", "--dtype", "float16"], "argument --dtype: invalid choice: 'float16'"),
