@@ -192,21 +192,25 @@ class ContactImplicitMPC:
 
         ``model``: a contact model, a name of :data:`~torchcontact.model.MODELS` built with
         its defaults (the relaxed QP's κ is then the paper's at h = 0.1 s: for another h,
-        pass ``RelaxedQP(paper_relaxation(h))``), or None for the paper's model at
-        ``env.default_stiffness`` with ``env.support_pass``; a model holding a fitted
+        pass ``RelaxedQP(paper_relaxation(h))``), or None for the model ``torchcontact run``
+        plans with (:func:`~torchcontact.mpc.trials.default_model`: the environment's shipped
+        model where it ships one, the TriFinger's, otherwise the paper's at
+        ``env.default_stiffness``; with ``env.support_pass``); a model holding a fitted
         :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
         calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
         built with the settings' iterations, memory and compilation (None: ``env.planner``);
         ``settings``: solver settings or a preset name (default the environment's default
-        preset);
+        preset); ``cost``: a cost or a registered name (None: ``env.cost(plant)``). With all
+        four None, the MPC is the one ``torchcontact run`` builds for ``env``'s defaults;
         ``background_compile``, ``residual_plan``: as in the constructor.
         """
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
         if model is None:
-            model = contact_model("paper", stiffness=env.default_stiffness)
-            model.support_pass = env.support_pass
+            from torchcontact.mpc.trials import default_model  # trials builds on this module
+
+            model = default_model(env)
         elif isinstance(model, str):
             model = contact_model(model)
         if planner is None:

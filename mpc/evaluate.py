@@ -36,6 +36,7 @@ from torchcontact.mpc.trials import (
     MAX_TRIALS,
     MPC_MODELS,
     TrialConfig,
+    default_model_fields,
     finish_compiling,
     load_learned,
     object_facts,
@@ -416,14 +417,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.relaxation = PAPER_RELAXATION if args.relaxation is None else args.relaxation
     elif args.learned is not None:
         args.learned = str(args.learned.resolve())
-    elif args.stiffness == SHIPPED or (args.stiffness is None and env.ships_model):
+    elif args.stiffness == SHIPPED:
         if not env.ships_model:
             parser.error(f"--stiffness shipped: {args.env} ships no model")
         args.learned, args.stiffness = SHIPPED, None
     elif args.stiffness == "paper":
         args.stiffness = env.stiffness
-    elif args.stiffness is None:
-        args.stiffness = env.default_stiffness
+    elif args.stiffness is None:  # the default model, as trial_configs and from_env take it
+        fields = default_model_fields(env)
+        args.learned, args.stiffness = fields["learned"], fields["stiffness"]
     args.planner = args.planner or env.planner
     args.env_description = env
     _load_inputs(args, env)

@@ -380,10 +380,7 @@ def trial_configs(
     if options.get("model") == "relaxed_qp":
         options.setdefault("relaxation", PAPER_RELAXATION)
     elif options.get("stiffness") is None and options.get("learned") is None:
-        if description.ships_model:
-            options["learned"] = SHIPPED
-        else:
-            options["stiffness"] = description.default_stiffness
+        options.update(default_model_fields(description))
     options.setdefault("stiffness", None)
     options.setdefault("planner", description.planner)
     if options.get("support_pass") is None:
@@ -516,6 +513,40 @@ def load_learned(
     return model.requires_grad_(False)
 
 
+def default_model_fields(env: Environment) -> dict:
+    """The model fields of a trial naming none (``learned`` and ``stiffness``): ``env``'s
+    shipped model (:data:`~torchcontact.shipped.SHIPPED`) where it ships one, otherwise the
+    paper model at ``env.default_stiffness``. :func:`trial_configs` (and so ``torchcontact
+    run``) and :func:`default_model` (``ContactImplicitMPC.from_env`` without a model) both
+    resolve the default here."""
+    if env.ships_model:
+        return {"learned": SHIPPED, "stiffness": None}
+    return {"learned": None, "stiffness": env.default_stiffness}
+
+
+def default_model(env: Environment) -> ContactModel:
+    """The contact model an MPC of ``env`` plans through unless told otherwise, the one
+    :func:`build_trial` builds for a default :func:`trial_configs` trial: the model of
+    :func:`default_model_fields`, with ``env.support_pass``."""
+    fields = default_model_fields(env)
+    if fields["learned"] is not None:
+        model = load_learned(fields["learned"], env.name)
+    else:
+        model = contact_model(DEFAULT_MODEL, stiffness=fields["stiffness"])
+    return with_support_pass(model, env.support_pass, env.name)
+
+
+def with_support_pass(model: ContactModel, on: bool, name: str) -> ContactModel:
+    """``model``, its second pass for the contacts with static bodies turned on when ``on``
+    (otherwise as it is); ``ValueError`` naming ``name`` (a trial or an environment) when
+    ``on`` and ``model`` is not the complementarity-free model."""
+    if on:
+        if not isinstance(model, ComplementarityFree):
+            raise ValueError(f"support_pass needs the complementarity-free model ({name})")
+        model.support_pass = True
+    return model
+
+
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
     """The contact model of ``config`` for a model step ``h`` [s]."""
     if config.learned is not None:
@@ -532,11 +563,7 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     """The environment, the plant and the MPC of ``config``."""
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision, config.object_options)
-    model = trial_model(config, env.h(plant))
-    if config.support_pass:
-        if not isinstance(model, ComplementarityFree):
-            raise ValueError(f"support_pass needs the complementarity-free model ({config.name})")
-        model.support_pass = True
+    model = with_support_pass(trial_model(config, env.h(plant)), config.support_pass, config.name)
     cost = config.cost
     if cost is None:
         cost = env.cost(
