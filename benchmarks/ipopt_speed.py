@@ -49,7 +49,9 @@ from studies.ipopt_baseline import (  # noqa: E402
 )
 from torchcontact.environments import ENVIRONMENTS, environment, tasks  # noqa: E402
 from torchcontact.environments.presets import PAPER  # noqa: E402
+from torchcontact.model import paper_model  # noqa: E402
 from torchcontact.mpc.controller import ContactImplicitMPC  # noqa: E402
+from torchcontact.mpc.trials import with_support_pass  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
 
 torch.set_num_threads(1)
@@ -69,9 +71,11 @@ def run_trial(
     preset = dataclasses.replace(env.preset(), compile=compile)
     # the paper's problem on both sides: the balance and hold terms are ours, not in its NLP
     cost = env.cost(plant, balance=0.0, hold_first=0)
-    ours = ContactImplicitMPC.from_env(env, plant, settings=preset, cost=cost)
+    # the paper model at the environment's K on both sides, as the paper's NLP states it
+    model = with_support_pass(paper_model(env.default_stiffness), env.support_pass, env.name)
+    ours = ContactImplicitMPC.from_env(env, plant, model, settings=preset, cost=cost)
     problem = ContactImplicitMPC.from_env(
-        env, plant, settings=dataclasses.replace(PAPER, compile=False), cost=cost
+        env, plant, model, settings=dataclasses.replace(PAPER, compile=False), cost=cost
     )
     settings = {"max_iter": REFERENCE_MAX_ITER}
     if not is_chain(problem):  # point fingertips: the reference's cap and tip bounds for them

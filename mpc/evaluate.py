@@ -309,7 +309,9 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     if qp and args.support_pass == "on":
         parser.error("--support-pass on is for the paper model, not relaxed_qp")
     if qp and args.gaps not in (None, "frozen"):
-        parser.error(f"--gaps {args.gaps} is for the paper model; relaxed_qp plans with frozen gaps")
+        parser.error(
+            f"--gaps {args.gaps} is for the paper model; relaxed_qp plans with frozen gaps"
+        )
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):

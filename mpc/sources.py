@@ -69,8 +69,8 @@ class FrozenAlongPlan(NamedTuple):
 
 def anchor_states(mpc, q: torch.Tensor, contacts: Contacts, controls: torch.Tensor):
     """``(T, nq)`` the states ``controls (T, n_u)`` (the warm start) lead to from ``q (nq,)``
-    under ``mpc``'s step frozen at ``contacts``, gaps propagated (momentum and residual left out: the anchors
-    are points to linearize about, not a prediction the plan is judged by)."""
+    under ``mpc``'s step frozen at ``contacts``, gaps propagated (momentum and residual left
+    out: the anchors are points to linearize about, not a prediction the plan is judged by)."""
     with torch.no_grad():
         step = mpc.freeze(q, contacts, compiled=False)
         Q, b = mpc.system(controls)

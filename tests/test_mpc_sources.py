@@ -93,7 +93,9 @@ def test_redetected_steps_are_the_detections_at_their_anchors_moved_to_first_ord
 def test_a_live_rollout_is_the_model_at_the_geometrys_contacts_of_each_state(plant):
     mpc = _mpc(plant, "live")
     q, contacts = _state(plant, -0.001)
-    controls = 0.004 * torch.randn(2, mpc.horizon, 9, dtype=DT, generator=torch.Generator().manual_seed(0))
+    controls = 0.004 * torch.randn(
+        2, mpc.horizon, 9, dtype=DT, generator=torch.Generator().manual_seed(0)
+    )
     states = mpc.rollout(q, controls, mpc.freeze(q, contacts))
     state = q.expand(2, -1)
     for t in range(mpc.horizon):

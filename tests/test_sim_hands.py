@@ -65,10 +65,14 @@ def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
     a spanning four, the paper's model predicts a resting object to stay within 1 mm a step."""
     from torchcontact.environments.hands import TRIFINGER_ENV
     from torchcontact.environments.presets import MPCSettings
+    from torchcontact.model import paper_model
     from torchcontact.mpc.controller import ContactImplicitMPC
 
     env = HandEnv("trifinger", name, overflow="deepest")
-    mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, env, settings=MPCSettings(compile=False))
+    model = paper_model(TRIFINGER_ENV.default_stiffness)
+    model.support_pass = TRIFINGER_ENV.support_pass
+    settings = MPCSettings(compile=False)
+    mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, env, model, settings=settings)
     for _ in range(10):  # settle into the ground
         env.step(np.zeros(env.nu))
     contacts = env.contacts(torch.float64)
