@@ -72,10 +72,12 @@ def run_trial(
     # the paper's problem on both sides: the balance and hold terms are ours, not in its NLP
     cost = env.cost(plant, balance=0.0, hold_first=0)
     # the paper model at the environment's K on both sides, as the paper's NLP states it
-    model = with_support_pass(paper_model(env.default_stiffness), env.support_pass, env.name)
-    ours = ContactImplicitMPC.from_env(env, plant, model, settings=preset, cost=cost)
+    def model():  # one each: an MPC casts its model to its own dtype
+        return with_support_pass(paper_model(env.default_stiffness), env.support_pass, env.name)
+
+    ours = ContactImplicitMPC.from_env(env, plant, model(), settings=preset, cost=cost)
     problem = ContactImplicitMPC.from_env(
-        env, plant, model, settings=dataclasses.replace(PAPER, compile=False), cost=cost
+        env, plant, model(), settings=dataclasses.replace(PAPER, compile=False), cost=cost
     )
     settings = {"max_iter": REFERENCE_MAX_ITER}
     if not is_chain(problem):  # point fingertips: the reference's cap and tip bounds for them

@@ -13,6 +13,7 @@ from studies.ipopt_baseline import FORMULATIONS, IpoptMPC, IpoptPlanner, registe
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.functional import cf_velocity
+from torchcontact.model import paper_model
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.planners import PLANNERS, Objective
 from torchcontact.results import read_json
@@ -171,7 +172,9 @@ def test_a_hands_nlp_steps_and_solves_as_our_mpc_in_both_formulations(hand):
     for _ in range(3):  # let the object settle into the fingers' grip
         plant.step(np.zeros(plant.hand.n_joints))
     settings, cost = MPCSettings(max_iter=200, compile=False), env.cost(plant, balance=0.0)
-    mpc = ContactImplicitMPC.from_env(env, plant, settings=settings, cost=cost)
+    model = paper_model(env.default_stiffness)  # the NLP's: the paper model at constant K
+    model.support_pass = env.support_pass
+    mpc = ContactImplicitMPC.from_env(env, plant, model, settings=settings, cost=cost)
     q, contacts = torch.as_tensor(plant.state()), plant.contacts(torch.float64)
     assert plant.detector.found >= 2
     p, quat = torch.as_tensor(target[:3]), torch.as_tensor(target[3:])
