@@ -71,6 +71,7 @@ def run_trial(
     preset = dataclasses.replace(env.preset(), compile=compile)
     # the paper's problem on both sides: the balance and hold terms are ours, not in its NLP
     cost = env.cost(plant, balance=0.0, hold_first=0)
+
     # the paper model at the environment's K on both sides, as the paper's NLP states it
     def model():  # one each: an MPC casts its model to its own dtype
         return with_support_pass(paper_model(env.default_stiffness), env.support_pass, env.name)
