@@ -377,9 +377,8 @@ class ContactImplicitMPC:
         one frozen at the real state, or the source's (:mod:`~torchcontact.mpc.sources`)."""
         if isinstance(frozen, FrozenAlongPlan):
             return frozen.at(t, q, self.layout)
-        if self.gaps == "live" and t > 0:
-            options = {"without_residual": True} if self.residual is not None else {}
-            return self.model.freeze(self.contacts_at(q), self.h, q, **options)
+        if self.gaps == "live" and t > 0:  # traced into the objective as it is, if compiled
+            return self.freeze(q, self.contacts_at(q), compiled=False)
         return frozen
 
     def residual_corrections(self, q0, controls, frozen, previous=None) -> torch.Tensor:

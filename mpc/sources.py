@@ -63,8 +63,7 @@ class FrozenAlongPlan(NamedTuple):
         )
         if t == 0:  # the real state is the anchor
             return step
-        moved = difference(self.anchors[t], q, 1.0, layout)
-        return step._replace(phi=step.phi + (step.normal @ moved.unsqueeze(-1)).squeeze(-1))
+        return step.advance_gaps(difference(self.anchors[t], q, step.h, layout))
 
 
 def anchor_states(mpc, q: torch.Tensor, contacts: Contacts, controls: torch.Tensor):
