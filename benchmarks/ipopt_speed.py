@@ -51,7 +51,6 @@ from torchcontact.environments import ENVIRONMENTS, environment, tasks  # noqa: 
 from torchcontact.environments.presets import PAPER  # noqa: E402
 from torchcontact.model import paper_model  # noqa: E402
 from torchcontact.mpc.controller import ContactImplicitMPC  # noqa: E402
-from torchcontact.mpc.trials import with_support_pass  # noqa: E402
 from torchcontact.results import read_json, write_csv, write_json  # noqa: E402
 
 torch.set_num_threads(1)
@@ -69,12 +68,12 @@ def run_trial(
     env = environment(env_name)
     plant = env.make_plant(obj)
     preset = dataclasses.replace(env.preset(), compile=compile)
-    # the paper's problem on both sides: the balance and hold terms are ours, not in its NLP
-    cost = env.cost(plant, balance=0.0, hold_first=0)
+    # the paper's problem on both sides: the hold term is ours, not in its NLP
+    cost = env.cost(plant, hold_first=0)
 
     # the paper model at the environment's K on both sides, as the paper's NLP states it
     def model():  # one each: an MPC casts its model to its own dtype
-        return with_support_pass(paper_model(env.default_stiffness), env.support_pass, env.name)
+        return paper_model(env.default_stiffness)
 
     ours = ContactImplicitMPC.from_env(env, plant, model(), settings=preset, cost=cost)
     problem = ContactImplicitMPC.from_env(

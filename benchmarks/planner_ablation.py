@@ -1,11 +1,11 @@
-"""The planner's ablation: each component of the hybrid planner and the support term, on the
-same trials in one run.
+"""The planner's ablation: the paper's L-BFGS against the hybrid planner, on the same trials
+in one run.
 
     python benchmarks/planner_ablation.py allegro --object random:0-49 --trials 1 --workers 2
     python benchmarks/planner_ablation.py trifinger --object random:30-79 --variants lbfgs hybrid
 
-Each variant is the environment's defaults with one change (``torchcontact run ENV --planner P
-[--support on | --support-margin M | --contact-spread S]``, :data:`VARIANTS`), run on the same
+Each variant is the environment's defaults with one change (``torchcontact run ENV --planner P``,
+:data:`VARIANTS`), run on the same
 objects and trial seeds through :func:`~torchcontact.mpc.trials.run_trials`, each in its own
 folder under ``--out`` (default ``results/ablation/ENV``), so an interrupted run resumes trial
 by trial and a rerun only reprints. It prints, per variant, success, falls, mean final errors
@@ -27,25 +27,9 @@ from torchcontact.mpc.report import summarize  # noqa: E402
 from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
 from torchcontact.results import write_csv, write_json  # noqa: E402
 
-VARIANTS = {
-    "lbfgs": {"planner": "lbfgs"},
-    "multistart": {"planner": "multistart"},
-    "hybrid": {"planner": "hybrid"},
-    "lbfgs+support": {"planner": "lbfgs", "support": True},
-    "lbfgs+support-2cm": {"planner": "lbfgs", "support_margin": 0.02},
-    "hybrid+support": {"planner": "hybrid", "support": True},
-    "lbfgs+axis": {"planner": "lbfgs", "contact_spread": 0.5},
-}
+VARIANTS = {"lbfgs": {"planner": "lbfgs"}, "hybrid": {"planner": "hybrid"}}
 """Variants by name: the :class:`~torchcontact.mpc.trials.TrialConfig` fields they set, as
-``torchcontact run ENV --planner P [--support on] [--support-margin M] [--contact-spread S]``
-does (the rest the environment's defaults); the ``+support`` rows need an environment whose
-object rests on a body (the Allegro's palm); ``+axis`` draws the tips toward a long object's
-axis instead of its centre (``--contact-spread 0.5``)."""
-
-
-def needs_support(name: str) -> bool:
-    """Whether variant ``name`` switches the support term on."""
-    return bool({"support", "support_margin"} & set(VARIANTS[name]))
+``torchcontact run ENV --planner P`` does (the rest the environment's defaults)."""
 
 
 WIDTHS = (18, 8, 6, 7, 6, 7, 6)
@@ -88,11 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         pairs = env.select(args.task or env.pairs[0][0], args.object)
     except ValueError as error:
         parser.error(str(error))
-    args.supports = getattr(env.make_plant(pairs[0][1]), "support_footprint", None) is not None
-    names = args.variants or [name for name in VARIANTS if args.supports or not needs_support(name)]
-    if not args.supports and any(needs_support(name) for name in names):
-        parser.error(f"--variants: {args.env}'s objects rest on the ground; no +support rows")
-    rows = [run_variant(name, args, pairs) for name in names]
+    rows = [run_variant(name, args, pairs) for name in args.variants or VARIANTS]
     print(f"{args.env}, --object {args.object}, {args.trials} trial(s) per object")
     header = ("variant", "success", "falls", "pos mm", "ang °", "median", "p90")
     print(" ".join(f"{name:>{width}}" for name, width in zip(header, WIDTHS, strict=True)))

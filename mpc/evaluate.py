@@ -113,40 +113,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--planner",
         choices=sorted(PLANNERS),
         default=None,
-        help="lbfgs (the paper's), multistart (L-BFGS from the warm start and from zero) or "
-        "hybrid (sampling choosing L-BFGS's second start); default the environment's",
-    )
-    parser.add_argument(
-        "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
-    )
-    parser.add_argument(
-        "--support",
-        choices=("on", "off"),
-        default=None,
-        help="(allegro) the cost's term keeping the object's planned centre over the palm; "
+        help="lbfgs (the paper's) or hybrid (sampling choosing L-BFGS's second start); "
         "default the environment's",
     )
     parser.add_argument(
-        "--support-margin",
-        type=float,
-        default=None,
-        help="(allegro) how far inside the palm's edges [m] the support term keeps the "
-        "object's centre; default the environment's",
-    )
-    parser.add_argument(
-        "--contact-spread",
-        type=float,
-        default=None,
-        help="(hands) how far along a long object the cost draws the tips, a fraction of its "
-        "two longest sides' difference (0: to its centre, the paper's); default the "
-        "environment's",
-    )
-    parser.add_argument(
-        "--balance",
-        type=float,
-        default=None,
-        help="(hands) weight of the cost's term against pushes that would tip the object over "
-        "its base's edge, from its geometry (0: off); default the environment's",
+        "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
     )
     parser.add_argument(
         "--hold-first",
@@ -157,43 +128,12 @@ def build_parser() -> argparse.ArgumentParser:
         "the environment's",
     )
     parser.add_argument(
-        "--hold-upright",
-        type=float,
-        default=None,
-        help="(hands, with a hold) the lean, as a fraction of the object's critical tilt, past "
-        "which the plan stops moving a held object and rights it (0: off); default the "
-        "environment's",
-    )
-    parser.add_argument(
         "--hold-approach",
         type=float,
         default=None,
         help="(hands, with a hold) the weight of the cost's contact term, relative to its "
         "own, until the object is held: it draws the tips to the object (1: the paper's "
         "throughout); default the environment's",
-    )
-    parser.add_argument(
-        "--pose-stage",
-        type=float,
-        default=None,
-        help="(hands) the weight of the cost's pose terms on each planned state before the "
-        "last, relative to theirs on the last, so the plan's first step moves the object "
-        "too (0: the last alone, the paper's); default the environment's",
-    )
-    parser.add_argument(
-        "--pose-stage-radius",
-        type=float,
-        default=None,
-        help="(hands) [m] with --pose-stage, how near the target the object's centre must "
-        "start a plan for the stage to apply (inf: every plan); default the environment's",
-    )
-    parser.add_argument(
-        "--support-pass",
-        choices=("on", "off"),
-        default=None,
-        help="the model resolves the object's contacts with static bodies (the ground, a "
-        "palm) after the robot's, so their friction answers a push (off: one pass, the "
-        "paper's); default the environment's",
     )
     parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
     parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
@@ -306,8 +246,6 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(
             "--learned replaces the paper model's constant K: drop --model and --stiffness"
         )
-    if qp and args.support_pass == "on":
-        parser.error("--support-pass on is for the paper model, not relaxed_qp")
     if qp and args.gaps not in (None, "frozen"):
         parser.error(
             f"--gaps {args.gaps} is for the paper model; relaxed_qp plans with frozen gaps"
@@ -331,37 +269,16 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     if args.tips is not None and not custom:
         parser.error("--tips is for the custom environment")
     cost_terms = {
-        "--support": args.support is not None or args.support_margin is not None,
-        "--contact-spread": args.contact_spread is not None,
-        "--balance": args.balance is not None,
         "--hold-first": args.hold_first is not None,
-        "--hold-upright": args.hold_upright is not None,
         "--hold-approach": args.hold_approach is not None,
-        "--pose-stage": args.pose_stage is not None,
-        "--pose-stage-radius": args.pose_stage_radius is not None,
     }
     given = [option for option, on in cost_terms.items() if on]
     if given and args.cost is not None:
         parser.error(f"{given[0]} is a term of the environment's cost: drop --cost")
-    if args.contact_spread is not None and not 0 <= args.contact_spread < math.inf:
-        parser.error(f"--contact-spread must be a number >= 0, got {args.contact_spread}")
-    if args.balance is not None and not 0 <= args.balance < math.inf:
-        parser.error(f"--balance must be a weight >= 0, got {args.balance}")
     if args.hold_first is not None and args.hold_first < 0:
         parser.error(f"--hold-first must be a number of contacts >= 0, got {args.hold_first}")
-    if args.hold_upright is not None and not 0 <= args.hold_upright < math.inf:
-        parser.error(f"--hold-upright must be a number >= 0, got {args.hold_upright}")
     if args.hold_approach is not None and not 0 < args.hold_approach < math.inf:
         parser.error(f"--hold-approach must be a weight > 0, got {args.hold_approach}")
-    if args.pose_stage is not None and not 0 <= args.pose_stage < math.inf:
-        parser.error(f"--pose-stage must be a weight >= 0, got {args.pose_stage}")
-    radius = args.pose_stage_radius
-    if radius is not None and not radius > 0:
-        parser.error(f"--pose-stage-radius must be a distance > 0 [m], got {radius}")
-    if args.support_margin is not None and not 0 <= args.support_margin < math.inf:
-        parser.error(f"--support-margin must be a distance >= 0 [m], got {args.support_margin}")
-    if args.support == "off" and args.support_margin is not None:
-        parser.error("--support-margin is for the support term: drop --support off")
     if custom and not args.robot.is_file():
         parser.error(f"--robot must be an existing MJCF file, got {str(args.robot)!r}")
 
@@ -371,8 +288,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     _check_options(parser, args)
     args.tips = None if args.tips is None else tuple(args.tips.split(","))
-    args.support = None if args.support is None else args.support == "on"
-    args.support_pass = None if args.support_pass is None else args.support_pass == "on"
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
         env = environment(args.env, args.robot, args.tips)
@@ -387,20 +302,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
         # a cost option: a scene it applies to and a value that fits, before any trial
-        terms = (
-            args.support,
-            args.support_margin,
-            args.contact_spread,
-            args.balance,
-            args.hold_first,
-            args.hold_upright,
-            args.hold_approach,
-            args.pose_stage,
-            args.pose_stage_radius,
-        )
-        if args.support or any(term is not None for term in terms[1:]):
+        if args.hold_first is not None or args.hold_approach is not None:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
-            env.cost(plant, *terms)
+            env.cost(plant, args.hold_first, args.hold_approach)
     except ValueError as error:
         parser.error(str(error))
     overrides = {
@@ -559,21 +463,13 @@ def main(argv: list[str] | None = None) -> int:
         if path is not None:
             writable_file(option, path)
     planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
-    support = ", support pass" if configs[0].support_pass else ""
-    balance = f", balance term {configs[0].balance:g}" if configs[0].balance else ""
     hold = configs[0].hold_first
     hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
-    if configs[0].hold_first and configs[0].hold_upright:
-        hold += f" and righted past {configs[0].hold_upright:g} of their critical tilt"
     if configs[0].hold_first and configs[0].hold_approach != 1:
         hold += f", approached at {configs[0].hold_approach:g}× the contact term"
-    if configs[0].pose_stage:
-        hold += f", the pose charged on every planned state at {configs[0].pose_stage:g}×"
-        if configs[0].pose_stage_radius != math.inf:
-            hold += f" within {1000 * configs[0].pose_stage_radius:g} mm of the target"
     print(
-        f"MPC through the {args.model} model ({_about(args)}{support}); solver "
-        f"{args.settings.label}{planner}{balance}{hold}"
+        f"MPC through the {args.model} model ({_about(args)}); solver "
+        f"{args.settings.label}{planner}{hold}"
     )
     for line in describe_objects(args):
         print(line)

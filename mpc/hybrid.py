@@ -18,8 +18,6 @@ MPC's does; each problem of a batch ``x0 (B, n)`` is planned on its own.
 
 from __future__ import annotations
 
-import functools
-
 import torch
 
 from torchcontact.mpc.planners import LBFGS, Objective, PlannerResult, register_planner
@@ -123,5 +121,3 @@ class Hybrid:
 
 
 register_planner("hybrid", Hybrid)
-register_planner("multistart", functools.partial(Hybrid, rounds=0, starts=2))
-"""The ablation of the sampling: L-BFGS from the warm start and from zero, the better kept."""

@@ -97,19 +97,25 @@ LEGACY_DEFAULTS = {
     "object_scale": None,
     "object_mass": None,
     "object_friction": None,
+    "hold_first": 0,
+    "hold_approach": 1.0,
+    "residual_plan": "fixed",
+}
+"""Values of configuration keys that records written before the key existed lack."""
+
+REMOVED_OPTIONS = {
     "support": None,
     "support_margin": None,
     "contact_spread": None,
     "support_pass": False,
     "balance": 0.0,
-    "hold_first": 0,
     "hold_upright": 0.0,
-    "hold_approach": 1.0,
     "pose_stage": 0.0,
-    "pose_stage_radius": math.inf,
-    "residual_plan": "fixed",
+    "pose_stage_radius": None,  # inf, which JSON writes as null
 }
-"""Values of configuration keys that records written before the key existed lack."""
+"""Configuration keys of options since removed (measured no better than the defaults,
+docs/experiments.md), with the value that left them off: a record holding another value was
+made by a removed option and matches no trial of this release."""
 
 
 LEGACY_MODELS = {"complementarity_free": "paper", "qp": "relaxed_qp"}
@@ -195,33 +201,12 @@ class TrialConfig:
         cost: a cost's registered name, None for the environment's.
         object_size, object_scale, object_mass, object_friction: the user's settings of the
             object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's.
-        support: the cost's support term (a hand holding its object on a palm) on or off;
-            None for the environment's default; support_margin: its margin [m], None for the
-            environment's.
-        contact_spread: how far along a long object the cost's contact term draws the tips
-            (:attr:`~torchcontact.environments.hands.HandModel.contact_spread`), None for the
-            environment's.
-        support_pass: the complementarity-free model resolves the contacts with static
-            bodies in a second pass (:attr:`~torchcontact.model.ComplementarityFree
-            .support_pass`); :func:`trial_configs` gives the environment's unless told.
-        balance: the weight of the cost's balance term (:func:`~torchcontact.environments
-            .costs.balance_cost`; 0: none); :func:`trial_configs` gives the environment's
-            unless told.
         hold_first: the contacts that must hold an object that tips before it slides before
             the plan moves it (:class:`~torchcontact.environments.costs.HoldFirst`; 0: none);
-            :func:`trial_configs` gives the environment's unless told.
-        hold_upright: with ``hold_first``, the lean, as a fraction of the object's critical
-            tilt, past which the plan rights a held object before it moves it on (0: none);
             :func:`trial_configs` gives the environment's unless told.
         hold_approach: with ``hold_first``, the weight of the cost's contact term until the
             object is held (1: the paper's throughout); :func:`trial_configs` gives the
             environment's unless told.
-        pose_stage: the weight of the cost's pose terms on each planned state before the
-            last, relative to theirs on the last (0: the last alone, the paper's);
-            :func:`trial_configs` gives the environment's unless told.
-        pose_stage_radius: [m] with ``pose_stage``, how near the target the object's centre
-            must start a plan for the stage to apply (inf: every plan; a record stores it as
-            null); :func:`trial_configs` gives the environment's unless told.
         residual_plan: how the plan uses a learned model's object residual
             (:data:`~torchcontact.mpc.controller.RESIDUAL_PLANS`; no effect without one).
     """
@@ -251,16 +236,8 @@ class TrialConfig:
     object_scale: float | None = None
     object_mass: float | None = None
     object_friction: float | None = None
-    support: bool | None = None
-    support_margin: float | None = None
-    contact_spread: float | None = None
-    support_pass: bool = False
-    balance: float = 0.0
     hold_first: int = 0
-    hold_upright: float = 0.0
     hold_approach: float = 1.0
-    pose_stage: float = 0.0
-    pose_stage_radius: float = math.inf
     residual_plan: str = "fixed"
 
     @property
@@ -296,7 +273,8 @@ class TrialConfig:
 
     def matches(self, record: dict) -> bool:
         """Whether the saved ``record`` was made with this configuration (inputs aside)."""
-        return stored_config(record) == asdict(self)
+        removed = any(record.get(key, off) != off for key, off in REMOVED_OPTIONS.items())
+        return not removed and stored_config(record) == asdict(self)
 
 
 def stored_config(record: dict) -> dict:
@@ -307,8 +285,6 @@ def stored_config(record: dict) -> dict:
         stored["model"] = LEGACY_MODELS.get(stored["model"], stored["model"])
     if isinstance(stored["tips"], list):
         stored["tips"] = tuple(stored["tips"])
-    if stored["pose_stage_radius"] is None:  # JSON has no inf: written as null
-        stored["pose_stage_radius"] = math.inf
     return stored
 
 
@@ -383,24 +359,11 @@ def trial_configs(
         options.update(default_model_fields(description))
     options.setdefault("stiffness", None)
     options.setdefault("planner", description.planner)
-    if options.get("support_pass") is None:
-        qp = options.get("model") == "relaxed_qp"
-        options["support_pass"] = description.support_pass and not qp
-    if options.get("balance") is None:
-        options["balance"] = description.balance if options.get("cost") is None else 0.0
     if options.get("hold_first") is None:
         options["hold_first"] = description.hold_first if options.get("cost") is None else 0
-    if options.get("hold_upright") is None:
-        upright = description.hold_upright if options["hold_first"] else 0.0
-        options["hold_upright"] = upright if options.get("cost") is None else 0.0
     if options.get("hold_approach") is None:
         approach = description.hold_approach if options["hold_first"] else 1.0
         options["hold_approach"] = approach if options.get("cost") is None else 1.0
-    if options.get("pose_stage") is None:
-        options["pose_stage"] = description.pose_stage if options.get("cost") is None else 0.0
-    if options.get("pose_stage_radius") is None:
-        radius = description.pose_stage_radius if options["pose_stage"] else math.inf
-        options["pose_stage_radius"] = radius if options.get("cost") is None else math.inf
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -527,24 +490,11 @@ def default_model_fields(env: Environment) -> dict:
 def default_model(env: Environment) -> ContactModel:
     """The contact model an MPC of ``env`` plans through unless told otherwise, the one
     :func:`build_trial` builds for a default :func:`trial_configs` trial: the model of
-    :func:`default_model_fields`, with ``env.support_pass``."""
+    :func:`default_model_fields`."""
     fields = default_model_fields(env)
     if fields["learned"] is not None:
-        model = load_learned(fields["learned"], env.name)
-    else:
-        model = contact_model(DEFAULT_MODEL, stiffness=fields["stiffness"])
-    return with_support_pass(model, env.support_pass, env.name)
-
-
-def with_support_pass(model: ContactModel, on: bool, name: str) -> ContactModel:
-    """``model``, its second pass for the contacts with static bodies turned on when ``on``
-    (otherwise as it is); ``ValueError`` naming ``name`` (a trial or an environment) when
-    ``on`` and ``model`` is not the complementarity-free model."""
-    if on:
-        if not isinstance(model, ComplementarityFree):
-            raise ValueError(f"support_pass needs the complementarity-free model ({name})")
-        model.support_pass = True
-    return model
+        return load_learned(fields["learned"], env.name)
+    return contact_model(DEFAULT_MODEL, stiffness=fields["stiffness"])
 
 
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
@@ -563,33 +513,12 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     """The environment, the plant and the MPC of ``config``."""
     env = environment(config.env, config.robot, config.tips)
     plant = env.make_plant(config.object, config.collision, config.object_options)
-    model = with_support_pass(trial_model(config, env.h(plant)), config.support_pass, config.name)
+    model = trial_model(config, env.h(plant))
     cost = config.cost
     if cost is None:
-        cost = env.cost(
-            plant,
-            support=config.support,
-            margin=config.support_margin,
-            spread=config.contact_spread,
-            balance=config.balance,
-            hold_first=config.hold_first,
-            hold_upright=config.hold_upright,
-            hold_approach=config.hold_approach,
-            pose_stage=config.pose_stage,
-            pose_stage_radius=config.pose_stage_radius,
-        )
-    elif (
-        config.balance
-        or config.hold_first
-        or config.hold_upright
-        or config.hold_approach != 1
-        or config.pose_stage
-        or config.pose_stage_radius != math.inf
-    ):
-        asked = ("balance", "hold_first", "hold_upright", "pose_stage")
-        term = next((name for name in asked if getattr(config, name)), None)
-        if term is None:
-            term = "hold_approach" if config.hold_approach != 1 else "pose_stage_radius"
+        cost = env.cost(plant, hold_first=config.hold_first, hold_approach=config.hold_approach)
+    elif config.hold_first or config.hold_approach != 1:
+        term = "hold_first" if config.hold_first else "hold_approach"
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env,
@@ -830,6 +759,9 @@ def record_differences(record: dict, config: TrialConfig, inputs: dict) -> dict[
     new = asdict(config)
     stored = stored_config(record)
     differences = {key: (stored[key], new[key]) for key in new if stored[key] != new[key]}
+    for key, off in REMOVED_OPTIONS.items():
+        if record.get(key, off) != off:
+            differences[key] = (record[key], "an option since removed")
     old = record.get("inputs")
     if old is None:
         if any(inputs[key] is not None for key in INPUT_FILES):

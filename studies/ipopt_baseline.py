@@ -167,12 +167,11 @@ def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: s
         )
     if mpc.gaps != "frozen":
         raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
-    for term in ("balance", "hold"):
-        if getattr(mpc.cost, term, None) is not None:
-            raise ValueError(
-                f"the IPOPT baseline states the paper's cost terms, not the {term} term: build "
-                "the MPC with env.cost(plant, balance=0.0, hold_first=0)"
-            )
+    if getattr(mpc.cost, "hold", None) is not None:
+        raise ValueError(
+            "the IPOPT baseline states the paper's cost terms, not the hold term: build "
+            "the MPC with env.cost(plant, hold_first=0)"
+        )
     hand = is_chain(mpc)
     if hand and tip_height is not None:
         raise ValueError("tip_height bounds the fingertips' coordinates; give None for hands")

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 
 import numpy as np
@@ -16,18 +15,14 @@ from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.hands import (
     ALLEGRO_ENV,
     TRIFINGER_ENV,
-    HandEnvironment,
-    long_half_axis,
-    sample_on_palm,
     tips_before_sliding,
 )
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.report import SUMMARY_KEYS
-from torchcontact.mpc.trials import build_trial, trial_configs
 from torchcontact.results import read_json
 from torchcontact.shapes import make_object, object_names
-from torchcontact.sim.hands import ALLEGRO, HANDS, Hand
+from torchcontact.sim.hands import HANDS, Hand
 
 FAST = ["--trials", "2", "--max-steps", "4", "--max-iter", "3", "--no-compile", "--no-progress"]
 EAGER = MPCSettings(compile=False)
@@ -132,86 +127,3 @@ def test_bad_options_are_refused(bad, tmp_path, capsys):
         main(["run", "allegro", *bad, "--out", str(tmp_path)])
     assert exit_info.value.code not in (0, None)
     assert bad[0] in capsys.readouterr().err
-
-
-def test_the_contact_axis_lies_along_a_long_objects_longest_side():
-    stick = make_object("stick")  # 13 × 3.5 × 3 cm
-    sides = stick.vertices.max(0) - stick.vertices.min(0)
-    axis = long_half_axis(stick, 0.5)
-    np.testing.assert_allclose(axis, (0.5 * (sides[0] - sides[1]) / 2, 0.0, 0.0))
-    assert long_half_axis(make_object("cube"), 0.5) is None  # no longest side
-    assert long_half_axis(stick, 0.0) is None
-    with pytest.raises(ValueError, match="spread"):
-        long_half_axis(stick, -0.1)
-
-
-def test_a_hands_cost_takes_the_contact_axis_of_its_spread():
-    stick = ALLEGRO_ENV.make_plant("stick")
-    spread = ALLEGRO_ENV.model.contact_spread
-    assert ALLEGRO_ENV.cost(stick).contact_axis == long_half_axis(stick.object, spread)
-    assert ALLEGRO_ENV.cost(stick, spread=0.0).contact_axis is None  # the paper's pull
-    assert ALLEGRO_ENV.cost(stick, spread=1.0).contact_axis == long_half_axis(stick.object, 1.0)
-    assert ALLEGRO_ENV.cost(ALLEGRO_ENV.make_plant("cube"), spread=1.0).contact_axis is None
-    assert TRIFINGER_ENV.model.contact_spread == 0  # measured on the Allegro only
-    with pytest.raises(ValueError, match="spread"):
-        environment("fingertips").cost(environment("fingertips").make_plant("cube"), spread=0.5)
-
-
-@pytest.mark.parametrize(
-    "env, argv, message",
-    [
-        ("allegro", ["--contact-spread", "-1"], "--contact-spread must be a number >= 0"),
-        ("allegro", ["--contact-spread", "1", "--cost", "pushing"], "drop --cost"),
-        ("fingertips", ["--contact-spread", "0.5"], "spread: the fingertips keep"),
-    ],
-)
-def test_the_cli_refuses_a_meaningless_contact_spread(env, argv, message, capsys):
-    with pytest.raises(SystemExit):
-        main(["run", env, "--trials", "1", *argv])
-    assert message in capsys.readouterr().err
-
-
-def test_a_trial_records_its_contact_spread(tmp_path):
-    out = tmp_path / "run"
-    argv = ["run", "allegro", "--object", "stick", "--contact-spread", "1", *FAST]
-    assert main([*argv, "--out", str(out)]) == 0
-    records = [read_json(path) for path in sorted((out / "trials").glob("*.json"))]
-    assert [record["contact_spread"] for record in records] == [1.0, 1.0]
-
-
-def test_a_spread_needs_a_cost_with_a_contact_term():
-    def plain(positions, quats, tips, controls, target_position, target_quat):
-        return (positions[..., -1, :] - target_position).square().sum(-1)
-
-    model = dataclasses.replace(ALLEGRO_ENV.model, cost=plain)
-    env = HandEnvironment(ALLEGRO, model, "on-palm", ALLEGRO_ENV.criterion, sample_on_palm, {})
-    stick = env.make_plant("stick")
-    assert env.cost(stick) is plain
-    with pytest.raises(ValueError, match="spread: function has no contact term"):
-        env.cost(stick, spread=0.5)
-
-
-def test_a_trial_records_its_support_pass_and_plans_with_it(tmp_path, capsys):
-    out = tmp_path / "run"
-    argv = ["run", "trifinger", "--object", "cube", "--support-pass", "on", *FAST]
-    assert main([*argv, "--out", str(out)]) == 0
-    assert "support pass" in capsys.readouterr().out.splitlines()[0]
-    records = [read_json(path) for path in sorted((out / "trials").glob("*.json"))]
-    assert [record["support_pass"] for record in records] == [True, True]
-    config = trial_configs("trifinger", [("in-hand", "cube")], [0], support_pass=True)[0]
-    _, plant, mpc = build_trial(config)
-    assert mpc.model.support_pass
-    contacts = plant.contacts(torch.float64)
-    assert contacts.static[contacts.active].any()  # the cube rests on the ground
-    frozen = mpc.freeze(torch.as_tensor(plant.state()), contacts, compiled=False)
-    assert torch.equal(frozen.second_pass, contacts.static_rows(mpc.model.facets))
-
-
-def test_the_support_pass_is_for_the_closed_form(capsys):
-    with pytest.raises(SystemExit):
-        main(["run", "trifinger", "--model", "relaxed_qp", "--support-pass", "on"])
-    assert "--support-pass on is for the paper model" in capsys.readouterr().err
-    qp = trial_configs("trifinger", [("in-hand", "cube")], [0], model="relaxed_qp")[0]
-    assert qp.support_pass is False
-    with pytest.raises(ValueError, match="support_pass needs the complementarity-free model"):
-        build_trial(dataclasses.replace(qp, support_pass=True))

@@ -13,9 +13,8 @@ from mpc.trials import LEGACY_DEFAULTS, build_trial, stored_config, trial_config
 from torchcontact.cli import main
 from torchcontact.contacts import Contacts
 from torchcontact.environments import environment
-from torchcontact.environments.costs import HOLDING_DISTANCE, HoldFirst, ManipulationCost, righted
+from torchcontact.environments.costs import HOLDING_DISTANCE, HoldFirst, ManipulationCost
 from torchcontact.environments.hands import tips_before_sliding
-from torchcontact.rotations import quaternion_angle, up_axis
 from torchcontact.sim.hands import HandEnv
 
 F64 = torch.float64
@@ -134,57 +133,6 @@ def test_until_held_the_approach_weighs_the_contact_term(dtype):
             HoldFirst(2, approach=bad)
 
 
-def leaning(angle: float, yaw: float = 0.3, dtype=F64) -> torch.Tensor:
-    """A quaternion turned ``yaw`` about the vertical, then leaned ``angle`` about world x."""
-    turn = torch.tensor([math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)], dtype=dtype)
-    lean = torch.tensor([math.cos(angle / 2), math.sin(angle / 2), 0, 0], dtype=dtype)
-    w1, x1, y1, z1 = lean
-    w2, x2, y2, z2 = turn
-    return torch.stack([
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ])  # fmt: skip
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_righted_takes_out_the_lean_and_keeps_the_turn(dtype):
-    upright = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=dtype)
-    quats = torch.stack([leaning(a, dtype=dtype) for a in (0.0, 0.2, 1.0, 3.0)]).reshape(2, 2, 4)
-    fixed = righted(quats, upright)
-    assert fixed.shape == (2, 2, 4) and fixed.dtype == dtype
-    torch.testing.assert_close(up_axis(fixed), up_axis(upright).expand(2, 2, 3))
-    expected = leaning(0.0, dtype=dtype).expand(2, 2, 4)  # the same yaw, upright
-    torch.testing.assert_close(quaternion_angle(fixed, expected), torch.zeros(2, 2, dtype=dtype),
-                               atol=1e-3, rtol=0)  # fmt: skip
-    # upside down it has no axis to turn about, and stays as it is, finite
-    flipped = torch.tensor([0.0, 1.0, 0.0, 0.0], dtype=dtype)
-    assert torch.equal(righted(flipped, upright), flipped)
-
-
-def test_past_its_lean_limit_a_held_object_is_righted_where_it_stands():
-    hold = HoldFirst(grip=2, lean_limit=math.radians(10))
-    hold.observe(held_by(NEAR, NEAR))
-    start = torch.tensor([0.01, -0.02, 0.03], dtype=F64)
-    target_p = torch.tensor([0.05, 0.0, 0.03], dtype=F64)
-    target_q = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=F64)
-    positions = start.expand(2, 4, 3)
-    upright, leaned = leaning(math.radians(5)), leaning(math.radians(15))
-    aim_p, aim_q = hold.aims(positions, upright.expand(2, 4, 4), target_p, target_q)
-    assert torch.equal(aim_p, target_p.expand(2, 3)) and torch.equal(aim_q, target_q.expand(2, 4))
-    aim_p, aim_q = hold.aims(positions, leaned.expand(2, 4, 4), target_p, target_q)
-    assert torch.equal(aim_p, start.expand(2, 3))
-    torch.testing.assert_close(aim_q, righted(leaned, target_q).expand(2, 4))
-    hold.observe(held_by(NEAR))  # unheld, it is righted whatever its lean
-    _, aim_q = hold.aims(positions, upright.expand(2, 4, 4), target_p, target_q)
-    torch.testing.assert_close(aim_q, righted(upright, target_q).expand(2, 4))
-    assert "upright=True" in repr(hold) and "upright=False" in repr(HoldFirst(2))
-    for bad in (0.0, -0.1, 4.0, math.nan):
-        with pytest.raises(ValueError, match="lean_limit must be in"):
-            HoldFirst(2, bad)
-
-
 def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     env = environment("trifinger")
     tall, wide = HandEnv("trifinger", "water_bottle"), HandEnv("trifinger", "cube")
@@ -202,28 +150,9 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     fingertips = environment("fingertips")
     with pytest.raises(ValueError, match="hold_first: the fingertips keep the paper's cost"):
         fingertips.cost(fingertips.make_plant("cube"), hold_first=2)
-    with pytest.raises(ValueError, match="hold_upright: the fingertips keep the paper's cost"):
-        fingertips.cost(fingertips.make_plant("cube"), hold_upright=1.0)
     with pytest.raises(ValueError, match="hold_approach: the fingertips keep the paper's cost"):
         fingertips.cost(fingertips.make_plant("cube"), hold_approach=4.0)
     assert fingertips.cost(fingertips.make_plant("cube"), hold_approach=1.0).hold is None
-
-
-def test_the_hands_right_a_held_object_past_a_share_of_its_critical_tilt():
-    env, tall = environment("trifinger"), HandEnv("trifinger", "water_bottle")
-    hold = env.cost(tall, hold_first=2, hold_upright=0.5).hold
-    assert hold.upright
-    expected = math.cos(0.5 * tall.object.critical_tilt())
-    assert float(hold.lean_cos) == pytest.approx(expected)
-    assert not env.cost(tall, hold_first=2, hold_upright=0.0).hold.upright
-    # the limit is an input: one graph for every object
-    bottle = env.cost(HandEnv("trifinger", "binoculars"), hold_first=2, hold_upright=0.5).hold
-    assert repr(bottle) == repr(hold) and float(bottle.lean_cos) != float(hold.lean_cos)
-    with pytest.raises(ValueError, match="hold_upright: it rights objects the hold holds"):
-        env.cost(tall, hold_first=0, hold_upright=1.0)
-    for value in (-1.0, math.inf, math.nan):
-        with pytest.raises(ValueError, match="hold_upright must be a non-negative number"):
-            env.cost(tall, hold_upright=value)
 
 
 def test_the_hands_weigh_the_approach_to_a_hold():
@@ -246,15 +175,10 @@ def test_a_trial_plans_with_its_hold():
     default = trial_configs("trifinger", [("in-hand", "cube")], [0])[0]
     assert default.hold_first == environment("trifinger").hold_first
     assert trial_configs("fingertips", [("rotation", "cube")], [0])[0].hold_first == 0
-    new_keys = ("hold_first", "hold_upright", "hold_approach")
+    new_keys = ("hold_first", "hold_approach")
     old = {k: v for k, v in vars(default).items() if k not in new_keys}
     assert stored_config(old)["hold_first"] == LEGACY_DEFAULTS["hold_first"] == 0  # ran without
-    assert stored_config(old)["hold_upright"] == LEGACY_DEFAULTS["hold_upright"] == 0.0
-    assert default.hold_upright == environment("trifinger").hold_upright
-    righting = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_upright=0.5)
-    assert build_trial(righting[0])[2].cost.hold.upright
     unheld = trial_configs("trifinger", [("in-hand", "cube")], [0], hold_first=0)[0]
-    assert unheld.hold_upright == 0.0  # nothing to right without a hold
     assert stored_config(old)["hold_approach"] == LEGACY_DEFAULTS["hold_approach"] == 1.0
     assert default.hold_approach == environment("trifinger").hold_approach
     assert unheld.hold_approach == 1.0  # no hold to approach
@@ -269,8 +193,6 @@ def test_the_cli_refuses_a_meaningless_hold(capsys):
         (["trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts >= 0"),
         (["trifinger", "--hold-first", "2", "--cost", "pushing"], "--hold-first is a term of"),
         (["fingertips", "--hold-first", "2"], "hold_first: the fingertips keep the paper's"),
-        (["trifinger", "--hold-upright", "-1"], "--hold-upright must be a number >= 0"),
-        (["trifinger", "--hold-upright", "1", "--hold-first", "0"], "hold_upright: it rights"),
         (["trifinger", "--hold-approach", "0"], "--hold-approach must be a weight > 0"),
         (["trifinger", "--hold-approach", "2", "--hold-first", "0"], "hold_approach: it weighs"),
         (["trifinger", "--hold-approach", "2", "--cost", "pushing"], "--hold-approach is a"),
@@ -290,13 +212,6 @@ def test_the_hold_runs_on_cuda():
     assert aim.device.type == "cuda" and torch.equal(turn.cpu(), quats[0].cpu())
     (grad,) = torch.autograd.grad(aim.sum(), positions)
     assert torch.isfinite(grad).all()
-    upright = HoldFirst(grip=2, lean_limit=math.radians(10))
-    upright.observe(held_by(NEAR, NEAR))
-    leaned = leaning(math.radians(20), dtype=torch.float32).cuda().expand(4, 4)
-    target = quats.new_tensor([0, 0, 0, 1])
-    _, turn = upright.aims(positions, leaned, positions.new_ones(3), target)
-    assert turn.device.type == "cuda" and torch.isfinite(turn).all()
-    torch.testing.assert_close(up_axis(turn).cpu(), torch.tensor([0.0, 0.0, 1.0]))
     drawn = HoldFirst(grip=2, approach=4.0)
     drawn.observe(held_by(NEAR))
     weight = drawn.contact_weight(positions)

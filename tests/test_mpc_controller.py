@@ -172,7 +172,6 @@ def test_a_residual_is_applied_at_every_planned_state(env, gaps):
 def _residual_model(seed: int = 0) -> ComplementarityFree:
     """The fingertips' default paper model with a random (not zero) object residual."""
     model = contact_model("paper", stiffness=FINGERTIPS.default_stiffness).double()
-    model.support_pass = FINGERTIPS.support_pass  # as the environment's default model
     model.residual = ObjectResidual(
         *object_indices(FINGERTIPS.layout.joints), 16, 15, hidden=8
     ).double()

@@ -133,10 +133,9 @@ def test_the_sampling_asks_for_values_only_where_the_objective_offers_them():
     torch.testing.assert_close(objective.values(x0, TILT), double_well(x0, TILT)[0])
 
 
-def test_multistart_is_the_hybrid_without_sampling():
-    """``multistart``: L-BFGS from the warm start and from zero, no samples evaluated."""
-    solver = planner("multistart", max_iter=30, memory=5, compile=False)
-    assert isinstance(solver, Hybrid) and solver.rounds == 0 and solver.starts == 2
+def test_without_sampling_the_hybrid_starts_from_the_warm_start_and_zero():
+    """No sampling rounds: L-BFGS from the warm start and from zero, no samples evaluated."""
+    solver = Hybrid(30, 5, rounds=0, starts=2)
     x0 = torch.full((1, 4), 0.9, dtype=F64)
     plan = solver.plan(Objective(double_well), x0, _box(4), args=(TILT,))
     plain = LBFGS(30, 5).plan(Objective(double_well), x0, _box(4), args=(TILT,))

@@ -21,6 +21,7 @@ from torchcontact.mpc.trials import (
     DEFAULT_MODEL,
     LEGACY_DEFAULTS,
     MPC_MODELS,
+    REMOVED_OPTIONS,
     SCENES_VERSION,
     RecordMismatch,
     TrialConfig,
@@ -230,6 +231,21 @@ def test_records_written_before_the_solver_options_still_resume(tmp_path):
     # another setting than the legacy one: refused, not overwritten
     with pytest.raises(RecordMismatch, match="memory 8 → 4"):
         _run([dataclasses.replace(CONFIG, memory=4)], tmp_path)
+
+
+def test_records_of_a_removed_option_resume_only_where_it_was_off(tmp_path):
+    """A record holds the keys of options since removed: at the value that left them off it
+    resumes, at another it was made by the option and refuses the run, naming it."""
+    _run([CONFIG], tmp_path)
+    path = tmp_path / "trials" / f"{CONFIG.name}.json"
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, **REMOVED_OPTIONS}))
+    _, seen = _run([CONFIG], tmp_path)
+    assert seen == [(0, True)]
+    path.write_text(json.dumps({**record, **REMOVED_OPTIONS, "balance": 1.0}))
+    with pytest.raises(RecordMismatch, match="balance 1.0 → 'an option since removed'"):
+        _run([CONFIG], tmp_path)
+    assert not CONFIG.matches({**record, "pose_stage": 0.5})
 
 
 def test_records_with_the_models_former_names_resume(tmp_path):

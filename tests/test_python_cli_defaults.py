@@ -78,13 +78,11 @@ def test_the_cli_config_is_trial_configs_default(built):
     assert {k: getattr(config, k) for k in ("learned", "stiffness")} == default_model_fields(env)
     assert (config.learned == SHIPPED) == env.ships_model
     assert config.model == "paper" and config.planner == env.planner
-    assert config.support_pass == env.support_pass
 
 
 def test_the_model_is_the_clis(built):
     name, env, config, cli, python = built
     same_module(python.model, cli.model)
-    assert python.model.support_pass == cli.model.support_pass == env.support_pass
     same_module(python.system, cli.system)  # a shipped calibration calibrates both
     if env.ships_model:  # the shipped model, not the paper's constant K
         assert config.learned == SHIPPED and config.stiffness is None

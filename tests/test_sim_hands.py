@@ -70,7 +70,6 @@ def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
 
     env = HandEnv("trifinger", name, overflow="deepest")
     model = paper_model(TRIFINGER_ENV.default_stiffness)
-    model.support_pass = TRIFINGER_ENV.support_pass
     settings = MPCSettings(compile=False)
     mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, env, model, settings=settings)
     for _ in range(10):  # settle into the ground
@@ -224,3 +223,12 @@ def test_the_plant_collides_its_object_as_asked():
     assert not HandEnv("trifinger", "mug").object.collide_hull  # its cavity stays open
     with pytest.raises(ValueError, match="collision"):
         HandEnv("trifinger", "cube", collision="convex")
+
+
+def test_the_allegro_palm_footprint_is_its_collision_box_in_the_world():
+    """The palm box spans x ∈ [−0.095, 0] (fingers towards +x) and y ∈ ±0.0565 (the MJCF)."""
+    plant = HandEnv("allegro", "cube")
+    torch.testing.assert_close(
+        torch.tensor(plant.support_footprint), torch.tensor((-0.095, -0.0565, 0.0, 0.0565))
+    )
+    assert HandEnv("trifinger", "cube").support_footprint is None  # resting on the ground

@@ -136,14 +136,11 @@ def test_the_baseline_refuses_what_it_cannot_solve(scene):
         IpoptMPC(ContactImplicitMPC.from_env(fingertips, cube, settings=propagated), n_rows=32)
     with pytest.raises(ValueError, match="qp"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, "relaxed_qp", settings=EAGER), 60)
-    balanced = trifinger.cost(hand, balance=1.0)
-    with pytest.raises(ValueError, match="not the balance term"):
-        IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=balanced), 60)
     bottle = trifinger.make_plant("water_bottle")  # tips before it slides: held first
     held = trifinger.cost(bottle, hold_first=2)
     with pytest.raises(ValueError, match="not the hold term"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, bottle, settings=EAGER, cost=held), 60)
-    paper_cost = trifinger.cost(hand, balance=0.0)
+    paper_cost = trifinger.cost(hand)
     hand_mpc = ContactImplicitMPC.from_env(trifinger, hand, settings=EAGER, cost=paper_cost)
     with pytest.raises(ValueError, match="tip_height"):
         IpoptMPC(hand_mpc, n_rows=60, tip_height=(0.0, 0.1))
@@ -171,9 +168,8 @@ def test_a_hands_nlp_steps_and_solves_as_our_mpc_in_both_formulations(hand):
     plant.reset(initial, target)
     for _ in range(3):  # let the object settle into the fingers' grip
         plant.step(np.zeros(plant.hand.n_joints))
-    settings, cost = MPCSettings(max_iter=200, compile=False), env.cost(plant, balance=0.0)
+    settings, cost = MPCSettings(max_iter=200, compile=False), env.cost(plant)
     model = paper_model(env.default_stiffness)  # the NLP's: the paper model at constant K
-    model.support_pass = env.support_pass
     mpc = ContactImplicitMPC.from_env(env, plant, model, settings=settings, cost=cost)
     q, contacts = torch.as_tensor(plant.state()), plant.contacts(torch.float64)
     assert plant.detector.found >= 2

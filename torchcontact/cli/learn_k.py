@@ -403,13 +403,13 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
     """The MPC whose actions the data are collected with: the paper's model at the paper's K,
-    the paper's solver settings and the environment's cost without its balance and hold-first
-    terms (the data the shipped models were fitted on were collected so)."""
+    the paper's solver settings and the environment's cost without its hold-first
+    term (the data the shipped models were fitted on were collected so)."""
     env = scene.environment
     settings = MPCSettings(compile=compile)
     if compile:
         quiet_known_inductor_warnings()
-    cost = env.cost(scene.plant, balance=0.0, hold_first=0)
+    cost = env.cost(scene.plant, hold_first=0)
     return ContactImplicitMPC.from_env(
         env, scene.plant, paper_model(env.stiffness), settings=settings, cost=cost
     )

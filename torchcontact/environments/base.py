@@ -10,7 +10,6 @@ builds one for a user's robot the same way.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,24 +89,11 @@ class Environment:
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         planner: the planner it plans with unless told otherwise (a name of
             :data:`~torchcontact.mpc.planners.PLANNERS`), the measured best.
-        support_pass: whether its MPC's complementarity-free model resolves the contacts
-            with static bodies in a second pass
-            (:attr:`~torchcontact.model.ComplementarityFree.support_pass`), the measured best.
-        balance: the weight of its cost's balance term
-            (:func:`~torchcontact.environments.costs.balance_cost`); 0 where it has none.
         hold_first: how many fingertip contacts must hold an object that tips before it
             slides before its MPC moves it (:class:`~torchcontact.environments.costs
             .HoldFirst`); 0 where it moves it at once.
-        hold_upright: with a hold, the lean (as a fraction of the object's critical tilt,
-            :meth:`~torchcontact.shapes.ObjectMesh.critical_tilt`) past which its MPC stops
-            moving the object and rights it; 0 where it moves a held object however it leans.
         hold_approach: with a hold, the weight of its cost's contact term while the object is
             not yet held; 1 where it is the paper's throughout.
-        pose_stage: the weight of its cost's pose terms on each planned state before the
-            last, relative to theirs on the last; 0 where they charge the last alone (the
-            paper's).
-        pose_stage_radius: [m] how near the target the object's centre must start a plan
-            for the stage to apply; inf where every plan is staged.
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -120,13 +106,8 @@ class Environment:
     stiffness: float
     default_stiffness: float
     planner: str = "lbfgs"
-    support_pass: bool = False
-    balance: float = 0.0
     hold_first: int = 0
-    hold_upright: float = 0.0
     hold_approach: float = 1.0
-    pose_stage: float = 0.0
-    pose_stage_radius: float = math.inf
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout
@@ -158,31 +139,12 @@ class Environment:
         raise NotImplementedError
 
     def cost(
-        self,
-        plant: Plant,
-        support: bool | None = None,
-        margin: float | None = None,
-        spread: float | None = None,
-        balance: float | None = None,
-        hold_first: int | None = None,
-        hold_upright: float | None = None,
-        hold_approach: float | None = None,
-        pose_stage: float | None = None,
-        pose_stage_radius: float | None = None,
+        self, plant: Plant, hold_first: int | None = None, hold_approach: float | None = None
     ) -> Cost:
         """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
-        ``support``: its term keeping the object's centre ``margin`` [m] inside the body that
-        holds it, on or off (None: the environment's default; environments whose objects rest
-        on the ground refuse on); ``spread``: how far along a long object its contact term
-        draws the tips; ``balance``: the weight of its term against pushes that tip the object
-        over its base; ``hold_first``: the contacts that must hold an object that tips before
-        it slides before the plan moves it; ``hold_upright``: with it, the lean, as a fraction
-        of the object's critical tilt, past which the plan rights the object before it moves
-        it on; ``hold_approach``: with it, the contact term's weight until the object is held;
-        ``pose_stage``: the pose terms' weight on the planned states before the last, relative
-        to theirs on the last; ``pose_stage_radius``: [m] how near the target a plan must
-        start for the stage to apply (these five: both hands only; None: the environment's
-        default)."""
+        ``hold_first``: the contacts that must hold an object that tips before it slides
+        before the plan moves it; ``hold_approach``: with it, the contact term's weight until
+        the object is held (both: hands only; None: the environment's default)."""
         raise NotImplementedError
 
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:

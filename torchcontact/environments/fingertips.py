@@ -3,8 +3,6 @@ ground (the paper's rotation, flip and in-air tasks)."""
 
 from __future__ import annotations
 
-import math
-
 import torch
 
 from torchcontact.environments import tasks
@@ -86,29 +84,12 @@ class FingertipsEnvironment(Environment):
     def cost(
         self,
         plant: FingertipsEnv,
-        support: bool | None = None,
-        margin: float | None = None,
-        spread: float | None = None,
-        balance: float | None = None,
         hold_first: int | None = None,
-        hold_upright: float | None = None,
         hold_approach: float | None = None,
-        pose_stage: float | None = None,
-        pose_stage_radius: float | None = None,
     ) -> ManipulationCost:
-        if support or margin is not None:
-            raise ValueError("support: the fingertips' objects rest on the ground, not on a body")
-        if spread is not None:
-            raise ValueError("spread: the fingertips keep the paper's contact term")
-        if balance:
-            raise ValueError("balance: the fingertips keep the paper's cost, with no balance term")
-        asked = {"hold_first": hold_first, "hold_upright": hold_upright,
-                 "hold_approach": hold_approach not in (None, 1)}  # fmt: skip
-        term = next((name for name, value in asked.items() if value), None)
-        if term:
+        if hold_first or hold_approach not in (None, 1):
+            term = "hold_first" if hold_first else "hold_approach"
             raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
-        if pose_stage or pose_stage_radius not in (None, math.inf):
-            raise ValueError("pose_stage: the fingertips keep the paper's cost, V on q_T alone")
         return ManipulationCost()
 
     def sample(self, plant: FingertipsEnv, task: str, seed: int):
