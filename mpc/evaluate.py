@@ -29,23 +29,25 @@ from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
 from torchcontact.mpc.controller import RESIDUAL_PLANS
+from torchcontact.mpc.models import (
+    DEFAULT_MODEL,
+    MPC_MODELS,
+    default_model_fields,
+    load_learned,
+    mpc_model,
+)
 from torchcontact.mpc.planners import PLANNERS
 from torchcontact.mpc.trials import (
-    DEFAULT_MODEL,
     MAX_STIFFNESS,
     MAX_TRIALS,
-    MPC_MODELS,
     TrialConfig,
-    default_model_fields,
     finish_compiling,
-    load_learned,
     object_facts,
     run_trials,
     trial_configs,
 )
 from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
-from torchcontact.relaxed_qp import PAPER_RELAXATION
 from torchcontact.results import (
     locked_folder,
     writable_directory,
@@ -58,6 +60,9 @@ from torchcontact.shipped import SHIPPED, shipped_path
 
 SUMMARY_FILES = ("summary.json", "trials.csv", "results.png")
 """What :func:`write_summary` writes in ``--out``."""
+
+PAPER_STIFFNESS = "paper"
+"""``--stiffness paper``: the environment's K from the paper."""
 
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
@@ -149,11 +154,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--model",
-        choices=MPC_MODELS,
+        choices=tuple(MPC_MODELS),
         default=DEFAULT_MODEL,
-        help="contact model the MPC plans through: paper (the complementarity-free model with "
-        "constant K, default) or relaxed_qp, the Anitescu QP with relaxed complementarity "
-        "differentiated through its KKT conditions (the paper's implicit-MPC baseline)",
+        help="contact model the MPC plans through: "
+        + "; ".join(f"{name} ({model.about})" for name, model in MPC_MODELS.items())
+        + f"; default {DEFAULT_MODEL}",
     )
     parser.add_argument(
         "--stiffness",
@@ -166,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--relaxation",
         type=float,
         default=None,
-        help=f"the paper's κ in λ∘g = κ (relaxed_qp); default {PAPER_RELAXATION:g}",
+        help="the paper's κ in λ∘g = κ, for a model that takes one; default "
+        + ", ".join(f"{n}'s {m.relaxation:g}" for n, m in MPC_MODELS.items() if m.relaxation),
     )
     parser.add_argument(
         "--learned",
@@ -217,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _stiffness(text: str | None) -> float | str | None:
     """``--stiffness``: ``"shipped"``, ``"paper"`` or a positive number (``ValueError``
     otherwise)."""
-    if text is None or text in (SHIPPED, "paper"):
+    if text is None or text in (SHIPPED, PAPER_STIFFNESS):
         return text
     try:
         value = float(text)
@@ -233,22 +239,23 @@ def _stiffness(text: str | None) -> float | str | None:
 
 def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Reject option combinations that mean nothing, naming the option."""
-    qp = args.model == "relaxed_qp"
+    model = mpc_model(args.model)
     try:
         args.stiffness = _stiffness(args.stiffness)
     except ValueError as error:
         parser.error(str(error))
-    if args.stiffness is not None and qp:
+    if args.stiffness is not None and not model.stiffness:
         parser.error(f"--stiffness is for the paper model, got {args.stiffness}")
-    if args.relaxation is not None and (not qp or not 0 < args.relaxation < math.inf):
+    takes = model.relaxation is not None
+    if args.relaxation is not None and (not takes or not 0 < args.relaxation < math.inf):
         parser.error(f"--relaxation must be positive and is for relaxed_qp, got {args.relaxation}")
-    if args.learned is not None and (qp or args.stiffness is not None):
+    if args.learned is not None and (not model.stiffness or args.stiffness is not None):
         parser.error(
             "--learned replaces the paper model's constant K: drop --model and --stiffness"
         )
-    if qp and args.gaps not in (None, "frozen"):
+    if not model.moving_gaps and args.gaps not in (None, "frozen"):
         parser.error(
-            f"--gaps {args.gaps} is for the paper model; relaxed_qp plans with frozen gaps"
+            f"--gaps {args.gaps} is for the paper model; {args.model} plans with frozen gaps"
         )
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
@@ -311,7 +318,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "max_iter": args.max_iter,
         "memory": args.memory,
         "horizon": args.horizon,
-        "gaps": "frozen" if args.model == "relaxed_qp" and args.gaps is None else args.gaps,
+        "gaps": args.gaps or (None if mpc_model(args.model).moving_gaps else "frozen"),
         "dtype": args.dtype,
         "compile": False if args.no_compile else None,
     }
@@ -319,15 +326,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         env.preset(args.preset), **{k: v for k, v in overrides.items() if v is not None}
     )
     args.max_steps = args.max_steps or env.criterion.max_steps
-    if args.model == "relaxed_qp":
-        args.relaxation = PAPER_RELAXATION if args.relaxation is None else args.relaxation
+    model = mpc_model(args.model)
+    if model.relaxation is not None:
+        args.relaxation = model.relaxation if args.relaxation is None else args.relaxation
     elif args.learned is not None:
         args.learned = str(args.learned.resolve())
     elif args.stiffness == SHIPPED:
         if not env.ships_model:
             parser.error(f"--stiffness shipped: {args.env} ships no model")
         args.learned, args.stiffness = SHIPPED, None
-    elif args.stiffness == "paper":
+    elif args.stiffness == PAPER_STIFFNESS:
         args.stiffness = env.stiffness
     elif args.stiffness is None:  # the default model, as trial_configs and from_env take it
         fields = default_model_fields(env)
@@ -371,8 +379,8 @@ def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
 
 
 def _about(args: argparse.Namespace) -> str:
-    if args.model == "relaxed_qp":
-        return f"relaxed QP, paper's κ = {args.relaxation:g}"
+    if mpc_model(args.model).relaxation is not None:
+        return f"{args.model}, paper's κ = {args.relaxation:g}"
     if args.learned == SHIPPED:
         return f"learned K(q), D(q) shipped with the package: {shipped_path(args.env)}"
     if args.learned is not None:
@@ -462,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     for option, path in (("--json", args.json), ("--figure", args.figure)):
         if path is not None:
             writable_file(option, path)
-    planner = "" if args.planner == "lbfgs" else f", planner {args.planner}"
+    planner = "" if args.planner == args.env_description.planner else f", planner {args.planner}"
     hold = configs[0].hold_first
     hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
     if configs[0].hold_first and configs[0].hold_approach != 1:

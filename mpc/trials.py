@@ -46,12 +46,18 @@ from torchcontact.digests import content_sha256
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.presets import PAPER, MPCSettings
-from torchcontact.model import ComplementarityFree, ContactModel, RelaxedQP, contact_model
+from torchcontact.model import ContactModel
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.models import (
+    DEFAULT_MODEL,
+    LEGACY_MODELS,
+    default_model_fields,
+    load_learned,
+    mpc_model,
+)
 from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import check_backend, parallel_map
-from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import (
     locked_folder,
     read_json,
@@ -72,14 +78,6 @@ below where the MPC's float32 cost overflows (K = 1e20 makes it NaN at its first
 MAX_TRIALS = 1_000_000
 """The most trials one call of :func:`trial_configs` makes (``torchcontact run`` one run): more
 would take months on any machine, and building their configurations alone takes minutes."""
-
-DEFAULT_MODEL = "paper"
-"""The contact model the MPC plans through unless told otherwise."""
-
-MPC_MODELS = ("paper", "relaxed_qp")
-"""Models a trial may name: the paper's complementarity-free model (constant K) and the QP
-with relaxed complementarity (the paper's implicit-MPC baseline). A learned K(q), D(q) comes
-with ``learned``."""
 
 LEGACY_DEFAULTS = {
     "model": "complementarity_free",
@@ -117,9 +115,6 @@ REMOVED_OPTIONS = {
 docs/experiments.md), with the value that left them off: a record holding another value was
 made by a removed option and matches no trial of this release."""
 
-
-LEGACY_MODELS = {"complementarity_free": "paper", "qp": "relaxed_qp"}
-"""The models' names in records written before the MPC took ``contact_model`` names."""
 
 INPUT_FILES = {"object_sha256": "object", "learned_sha256": "learned", "robot_sha256": "robot"}
 """Keys of a record's ``inputs`` holding the SHA-256 of the file a configuration field names
@@ -192,7 +187,8 @@ class TrialConfig:
         max_iter, memory, horizon, dtype, compile, gaps: the solver settings
             (:class:`~torchcontact.environments.presets.MPCSettings`).
         stiffness: K of the paper's model (None with ``learned`` or the QP).
-        model: one of :data:`MPC_MODELS`; relaxation: the paper's κ of the relaxed QP.
+        model: one of :data:`~torchcontact.mpc.models.MPC_MODELS`; relaxation: the paper's κ
+            of a model that takes one (the relaxed QP).
         learned: a checkpoint whose K(q), D(q) the MPC plans with, or ``"shipped"``: the
             environment's shipped model (:mod:`torchcontact.shipped`).
         planner: the planner's registered name.
@@ -353,8 +349,9 @@ def trial_configs(
     settings = _settings(description, settings)
     pairs, seeds = (x if hasattr(x, "__len__") else list(x) for x in (pairs, seeds))
     _check_trial_arguments(description, pairs, seeds, max_steps, options)
-    if options.get("model") == "relaxed_qp":
-        options.setdefault("relaxation", PAPER_RELAXATION)
+    kappa = mpc_model(options.get("model", DEFAULT_MODEL)).relaxation
+    if kappa is not None:
+        options.setdefault("relaxation", kappa)
     elif options.get("stiffness") is None and options.get("learned") is None:
         options.update(default_model_fields(description))
     options.setdefault("stiffness", None)
@@ -432,9 +429,7 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
                 else "a positive finite number"
             )
             raise ValueError(f"{name} must be {limit} (or None), got {value!r}")
-    model = options.get("model", DEFAULT_MODEL)
-    if model not in MPC_MODELS:
-        raise ValueError(f"model must be one of {MPC_MODELS}, got {model!r}")
+    mpc_model(options.get("model", DEFAULT_MODEL))
 
 
 def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
@@ -460,53 +455,11 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
     return {**inputs, **library_versions()}
 
 
-def load_learned(
-    learned: str, env: str, robot: str | None = None, tips: Sequence[str] | None = None
-) -> ComplementarityFree:
-    """The model (no gradients) of checkpoint ``learned`` (a path or :data:`~torchcontact
-    .shipped.SHIPPED`) for environment ``env`` (``robot``, ``tips``: a user's): a
-    :class:`~torchcontact.checkpoint.CheckpointError` naming the file when it is no
-    checkpoint, or one learned in another environment or on another state layout."""
-    from torchcontact.checkpoint import check_fits, load_checkpoint
-
-    path = resolve_learned(learned, env)
-    model, _, meta = load_checkpoint(path)
-    layout = environment(env, robot, None if tips is None else tuple(tips)).layout
-    check_fits(path, meta, None if robot is not None else env, layout.joints)
-    return model.requires_grad_(False)
-
-
-def default_model_fields(env: Environment) -> dict:
-    """The model fields of a trial naming none (``learned`` and ``stiffness``): ``env``'s
-    shipped model (:data:`~torchcontact.shipped.SHIPPED`) where it ships one, otherwise the
-    paper model at ``env.default_stiffness``. :func:`trial_configs` (and so ``torchcontact
-    run``) and :func:`default_model` (``ContactImplicitMPC.from_env`` without a model) both
-    resolve the default here."""
-    if env.ships_model:
-        return {"learned": SHIPPED, "stiffness": None}
-    return {"learned": None, "stiffness": env.default_stiffness}
-
-
-def default_model(env: Environment) -> ContactModel:
-    """The contact model an MPC of ``env`` plans through unless told otherwise, the one
-    :func:`build_trial` builds for a default :func:`trial_configs` trial: the model of
-    :func:`default_model_fields`."""
-    fields = default_model_fields(env)
-    if fields["learned"] is not None:
-        return load_learned(fields["learned"], env.name)
-    return contact_model(DEFAULT_MODEL, stiffness=fields["stiffness"])
-
-
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
     """The contact model of ``config`` for a model step ``h`` [s]."""
     if config.learned is not None:
         return load_learned(config.learned, config.env, config.robot, config.tips)
-    if config.model == "relaxed_qp":
-        kappa = PAPER_RELAXATION if config.relaxation is None else config.relaxation
-        return RelaxedQP(paper_relaxation(h, kappa), facets=4)
-    if config.model == "paper":
-        return contact_model("paper", stiffness=config.stiffness)
-    raise ValueError(f"model must be one of {MPC_MODELS}, got {config.model!r}")
+    return mpc_model(config.model).build(h, config.stiffness, config.relaxation)
 
 
 def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplicitMPC]:

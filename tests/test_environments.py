@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from torchcontact import environments
 from torchcontact.environments import (
     ENVIRONMENTS,
-    Environment,
     environment,
     register_environment,
 )
@@ -91,7 +91,7 @@ def _gripper(max_steps: int = 150):
 
 def test_a_user_robot_from_its_mjcf_pushes_a_cube_to_its_target_closed_loop():
     env = _gripper()
-    assert isinstance(Environment.from_mjcf(GRIPPER), type(env))
+    assert isinstance(environments.from_mjcf(GRIPPER), type(env))  # the package's own
     assert env.layout.joints == ("free", "slide", "slide", "slide", "slide")
     assert env.hand.tips == ("left_tip", "right_tip")
     plant = env.make_plant("cube")

@@ -8,6 +8,7 @@ function of the installed packages is longer than :data:`MAX_FUNCTION_LINES` lin
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import subprocess
@@ -179,3 +180,126 @@ def test_no_function_is_longer_than_the_limit():
     code = LONG_FUNCTIONS.format(limit=MAX_FUNCTION_LINES, allowed=LONG_FUNCTIONS_ALLOWED)
     long = _run(code)
     assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
+
+
+SOURCE_FOLDERS = {"torchcontact": ROOT / "torchcontact", "torchcontact.mpc": ROOT / "mpc",
+                  "torchcontact.learn": ROOT / "learn"}  # fmt: skip
+"""The installed packages' folders (``package-dir`` in pyproject.toml)."""
+
+
+def _sources() -> dict[str, Path]:
+    """Every module of the installed packages by dotted name, read from the folders."""
+    found = {}
+    for package, folder in SOURCE_FOLDERS.items():
+        for path in sorted(folder.rglob("*.py")):
+            parts = [p for p in path.relative_to(folder).with_suffix("").parts if p != "__init__"]
+            found[".".join([package, *parts])] = path
+    return found
+
+
+def _imported(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The modules of ours that ``name`` (file ``path``) imports anywhere in its source,
+    function-level imports included (an import deferred into a function still closes a
+    circle: it only moves the failure to the first call)."""
+
+    def owner(dotted: str) -> str | None:
+        while dotted and dotted not in modules:
+            dotted = dotted.rpartition(".")[0]
+        return dotted or None
+
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {owner(alias.name) for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{up}.{base}" if base else up
+            for alias in node.names:
+                full = f"{base}.{alias.name}"
+                found.add(full if full in modules else owner(base))
+    return {module for module in found if module and module != name}
+
+
+def test_no_import_circle_anywhere():
+    """Tarjan's strongly connected components of the import graph: each must be one module."""
+    modules = _sources()
+    graph = {name: _imported(name, path, modules) for name, path in modules.items()}
+    index, low, stack, on_stack, circles = {}, {}, [], set(), []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for other in graph[node]:
+            if other not in index:
+                visit(other)
+                low[node] = min(low[node], low[other])
+            elif other in on_stack:
+                low[node] = min(low[node], index[other])
+        if low[node] == index[node]:
+            component, member = set(), None
+            while member != node:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.add(member)
+            if len(component) > 1:
+                circles.append(sorted(component))
+
+    for name in graph:
+        if name not in index:
+            visit(name)
+    assert "torchcontact.mpc.trials" in graph["torchcontact.mpc.evaluate"]  # the graph is real
+    assert not circles, "import circles:\n" + "\n".join(" ↔ ".join(c) for c in circles)
+
+
+def _registries() -> dict[str, set[str]]:
+    """The registered names of each registry, by the modules that own it (where its names may
+    be compared: registering, validating, building)."""
+    from torchcontact import checkpoint, model, stiffness
+    from torchcontact.environments import ENVIRONMENTS, costs
+    from torchcontact.mpc import models, planners
+
+    return {
+        "torchcontact.model": set(model.MODELS),
+        "torchcontact.stiffness": set(stiffness.PARAMETERIZATIONS),
+        "torchcontact.checkpoint": set(checkpoint.STIFFNESS_KINDS),
+        "torchcontact.environments.costs": set(costs.COSTS),
+        "torchcontact.environments": set(ENVIRONMENTS),
+        "torchcontact.mpc.planners": set(planners.PLANNERS),
+        "torchcontact.mpc.hybrid": set(planners.PLANNERS),
+        "torchcontact.mpc.models": {*models.MPC_MODELS, *models.LEGACY_MODELS},
+    }
+
+
+def _compared_strings(tree: ast.AST):
+    """``(line, text)`` of every string literal in a comparison (``==``, ``!=``, ``in``)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            for side in (node.left, *node.comparators):
+                items = side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side]
+                for item in items:
+                    if isinstance(item, ast.Constant) and isinstance(item.value, str):
+                        yield node.lineno, item.value
+
+
+def test_no_registered_name_is_compared_as_a_string_outside_its_registry():
+    """A behaviour chosen by comparing a registered name bypasses the registry: what the
+    name means belongs to its entry (as :class:`~torchcontact.mpc.models.MPCModel`'s fields)."""
+    from torchcontact.checkpoint import DAMPING_KINDS
+
+    registries = _registries()
+    names = set().union(*registries.values())
+    registries["torchcontact.checkpoint"] |= set(DAMPING_KINDS)  # its own words for D
+    found = []
+    for module, path in _sources().items():
+        allowed = registries.get(module, set())
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        found += [
+            f"{path.relative_to(ROOT)}:{line} compares {text!r}"
+            for line, text in _compared_strings(tree)
+            if text in names and text not in allowed
+        ]
+    assert not found, "registered names compared as strings:\n" + "\n".join(found)

@@ -16,11 +16,10 @@ from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc import trials
+from torchcontact.mpc.models import DEFAULT_MODEL, MPC_MODELS
 from torchcontact.mpc.report import csv_row, summarize
 from torchcontact.mpc.trials import (
-    DEFAULT_MODEL,
     LEGACY_DEFAULTS,
-    MPC_MODELS,
     REMOVED_OPTIONS,
     SCENES_VERSION,
     RecordMismatch,
@@ -115,7 +114,7 @@ def test_trial_configs_fill_in_the_environments_defaults():
 
 def test_the_relaxed_qp_takes_the_papers_kappa_at_the_objects_step():
     """κ is converted for the plant's model step: the foam brick's h is 0.05 s, not 0.1 s."""
-    assert MPC_MODELS == ("paper", "relaxed_qp") and DEFAULT_MODEL == "paper"
+    assert tuple(MPC_MODELS) == ("paper", "relaxed_qp") and DEFAULT_MODEL == "paper"
     config = dataclasses.replace(
         CONFIG, object="foam_brick", model="relaxed_qp", stiffness=None, relaxation=2e-4
     )

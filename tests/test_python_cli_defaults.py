@@ -16,7 +16,8 @@ import torch
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.evaluate import configs_of, parse_args
-from torchcontact.mpc.trials import build_trial, default_model_fields, trial_configs
+from torchcontact.mpc.models import default_model_fields
+from torchcontact.mpc.trials import build_trial, trial_configs
 from torchcontact.shipped import SHIPPED
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,6 +9,7 @@ with :func:`~torchcontact.environments.custom.from_mjcf` and, to run it by name,
 import functools
 
 from torchcontact.environments.base import Environment
+from torchcontact.environments.custom import from_mjcf
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV
 from torchcontact.validation import register
@@ -43,9 +44,7 @@ def environment(
 @functools.lru_cache(maxsize=8)
 def _custom(name: str, robot: str, tips: tuple[str, ...] | None) -> Environment:
     """A user robot's environment, built once per process."""
-    from torchcontact.environments.custom import from_mjcf
-
     return from_mjcf(robot, tips, name=name)
 
 
-__all__ = ["ENVIRONMENTS", "Environment", "environment", "register_environment"]
+__all__ = ["ENVIRONMENTS", "Environment", "environment", "from_mjcf", "register_environment"]

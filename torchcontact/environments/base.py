@@ -151,13 +151,6 @@ class Environment:
         """Initial and target object poses ``(7,), (7,)`` of trial ``seed`` of ``task``."""
         raise NotImplementedError
 
-    @staticmethod
-    def from_mjcf(robot, tips=None, **options) -> Environment:
-        """The environment of a user's robot MJCF: :func:`~.custom.from_mjcf`."""
-        from torchcontact.environments.custom import from_mjcf  # custom builds on this module
-
-        return from_mjcf(robot, tips, **options)
-
     # --- derived -------------------------------------------------------------------------
 
     def system(self, plant: Plant) -> QuasiDynamic:
