@@ -28,13 +28,15 @@ from hostile_helpers import (
     refused,
 )
 
-from torchcontact.checkpoint import CheckpointError, load_checkpoint
+from torchcontact.checkpoint import CheckpointError, constant_model, load_checkpoint
 from torchcontact.cli import main
 from torchcontact.cli.learn_k import dataset_dir
 from torchcontact.contacts import Contacts
 from torchcontact.digests import content_sha256, file_sha256, loaded_files
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
+from torchcontact.functional import cf_velocity
+from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.mpc.trials import (
     MAX_STIFFNESS,
     RecordMismatch,
@@ -47,10 +49,10 @@ from torchcontact.mpc.trials import (
     trial_inputs,
 )
 from torchcontact.qp import qp_solve
-from torchcontact.results import locked_folder, writable_file
+from torchcontact.results import locked_folder, writable_file, write_csv
 from torchcontact.shapes import load_object
 from torchcontact.shipped import SHIPPED, check_shipped, resolve_learned
-from torchcontact.stiffness import StateNetwork
+from torchcontact.stiffness import ContactNetwork, StateNetwork
 from torchcontact.systems import QuasiDynamic
 
 # --- 1. two runs into one --out ------------------------------------------------------------
@@ -640,3 +642,55 @@ def test_a_record_edited_to_impossible_values_is_corrupt_and_run_again(tmp_path,
     path.write_text(json.dumps({**json.loads(path.read_text()), **change}))  # NaN as a literal
     status, found = record_status(path, config, trial_inputs(config))
     assert status == "corrupt" and found == why
+
+
+# --- the audit's core findings (benchmarks/hostile_audit.py) ---------------------------------
+
+_C = {
+    "phi": torch.rand(2), "jac_normal": torch.randn(2, 3), "jac_tangent": torch.randn(2, 2, 3),
+    "mu": torch.ones(2), "active": torch.ones(2, dtype=torch.bool),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (lambda: Contacts(**_C, frame=[[0.0] * 3] * 3), TypeError, "frame must be a torch.Tensor"),
+        (lambda: Contacts(**_C, position=torch.zeros(2, 3, dtype=torch.long)), TypeError,
+         "position must be a floating-point tensor"),
+        (lambda: Contacts(**{**_C, "active": [True, True]}), TypeError, "active must be a bool"),
+        (lambda: Contacts(**_C, position=torch.zeros(2, 3, device="meta")), ValueError,
+         "position must be on the device of phi"),
+        (lambda: Contacts.empty(-1, 3), ValueError, "slots must be an integer >= 0, got -1"),
+        (lambda: Contacts.empty(2, 0), ValueError, "nv must be an integer >= 1, got 0"),
+        (lambda: Contacts.empty(2.5, 3), ValueError, "slots must be an integer >= 0, got 2.5"),
+        (lambda: ContactNetwork(hidden=0), ValueError, "hidden must be an integer >= 1, got 0"),
+        (lambda: StateNetwork(16, 4, hidden=-3), ValueError, "hidden must be an integer >= 1"),
+        (lambda: paper_model(-1.0), ValueError, "stiffness must be a positive finite number"),
+        (lambda: constant_model(math.nan, {"gamma": 100.0, "facets": 4}), ValueError,
+         "stiffness must be a positive finite number"),
+        (lambda: write_csv(UNWRITABLE, [{"a": 1}]), FileNotFoundError,
+         f"cannot write {UNWRITABLE}"),
+        (lambda: write_csv("x.csv", [1, 2]), TypeError, "rows must be mappings of column"),
+    ],
+)  # fmt: skip
+def test_the_audits_core_findings_are_named(call, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        call()
+
+
+@pytest.mark.parametrize("h", ["0.1", None, True])
+def test_a_step_names_an_h_that_is_not_a_number(h):
+    model = ComplementarityFree(3.0)
+    with pytest.raises(TypeError, match=r"^h must be a number or a torch.Tensor"):
+        model(torch.ones(3), torch.zeros(3), Contacts(**_C), h)
+
+
+def test_a_step_names_contacts_that_are_not_contacts_and_a_b_its_jac_does_not_fit():
+    model = ComplementarityFree(3.0)
+    with pytest.raises(TypeError, match=r"^contacts must be Contacts, got str"):
+        model(torch.ones(3), torch.zeros(3), "x", 0.1)
+    with pytest.raises(TypeError, match=r"^stiffness must be a number or a torch.Tensor"):
+        cf_velocity(torch.ones(3), torch.zeros(3), torch.randn(8, 3), torch.rand(8), 0.1, "3")
+    with pytest.raises(ValueError, match=r"nv that of b \(2,\), got \(8, 3\)"):
+        cf_velocity(torch.ones(2), torch.zeros(2), torch.randn(8, 3), torch.rand(8), 0.1, 3.0)

@@ -187,7 +187,7 @@ def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
 def constant_model(stiffness: float, meta: dict) -> ComplementarityFree:
     """The paper's model of the scene at constant K = ``stiffness``: D = 0.1·K, fixed."""
     return ComplementarityFree(
-        Constant(stiffness, learnable=False),
+        Constant(stiffness, learnable=False, name="stiffness"),
         Relative(0.1, learnable=False),
         gamma=meta["gamma"],
         facets=meta["facets"],

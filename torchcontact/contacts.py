@@ -10,7 +10,14 @@ from dataclasses import dataclass, fields, replace
 import torch
 from torch.utils import _pytree as pytree
 
-from torchcontact.validation import check_finite, check_nonnegative, check_shape, check_tensor
+from torchcontact.validation import (
+    check_count,
+    check_finite,
+    check_nonnegative,
+    check_same_kind,
+    check_shape,
+    check_tensor,
+)
 
 PAD_DISTANCE = 1.0
 """φ [m] given to empty slots; their Jacobian rows are zero, so they never push."""
@@ -75,8 +82,12 @@ class Contacts:
     static: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
-        for name in ("phi", "jac_normal", "jac_tangent", "mu"):
-            check_tensor(name, getattr(self, name))
+        for name in ("phi", "jac_normal", "jac_tangent", "mu", "frame", "position"):
+            value = getattr(self, name)
+            if value is not None or name not in ("frame", "position"):
+                check_tensor(name, value)
+        if not isinstance(self.active, torch.Tensor):
+            raise TypeError(f"active must be a bool tensor, got {type(self.active).__name__}")
         nc, nv = self.jac_normal.shape[-2:] if self.jac_normal.dim() >= 2 else (-1, -1)
         batch = self.phi.shape[:-1]
         check_shape("phi", self.phi, "(..., nc)", self.phi.dim() >= 1)
@@ -116,6 +127,7 @@ class Contacts:
                 f"{(*batch, nc, 3)}",
                 self.position.shape == (*batch, nc, 3),
             )
+        check_same_kind("phi", {f.name: getattr(self, f.name) for f in fields(self)}, dtype=False)
         for name in ("phi", "jac_normal", "jac_tangent", "frame", "position"):
             if getattr(self, name) is not None:
                 check_finite(name, getattr(self, name))
@@ -124,6 +136,8 @@ class Contacts:
     @classmethod
     def empty(cls, slots: int, nv: int, batch: tuple[int, ...] = (), dtype=None, device=None):
         """All-padding contacts: ``slots`` inactive slots for ``nv`` velocities."""
+        check_count("slots", slots, minimum=0)
+        check_count("nv", nv)
         kw = {"dtype": dtype or torch.get_default_dtype(), "device": device}
         return cls(
             phi=torch.full((*batch, slots), PAD_DISTANCE, **kw),

@@ -99,7 +99,10 @@ def _step_batch(Q, b, jac, phi) -> tuple[torch.Size, int]:
     check_same_kind("b", tensors)
     check_shape("b", b, "(..., nv)", b.dim() >= 1)
     nv = b.shape[-1]
-    check_shape("jac", jac, f"(..., m, nv={nv})", jac.dim() >= 2 and jac.shape[-1] == nv)
+    check_shape(
+        "jac", jac, f"(..., m, nv={nv}), nv that of b {tuple(b.shape)}",
+        jac.dim() >= 2 and jac.shape[-1] == nv,
+    )  # fmt: skip
     m = jac.shape[-2]
     check_shape("phi", phi, f"(..., m={m})", phi.dim() >= 1 and phi.shape[-1] == m)
     dense = is_dense_metric(Q, b)
@@ -130,6 +133,10 @@ def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass
     if second_pass is not None:
         _check_second_pass(second_pass, (*batch, m))
     scalars = {"h": h, "stiffness": stiffness, "damping": damping}
+    for name, x in {**scalars, "gamma": gamma}.items():
+        number = isinstance(x, (int, float)) and not isinstance(x, bool)
+        if not (number or isinstance(x, torch.Tensor) or (x is None and name != "h")):
+            raise TypeError(f"{name} must be a number or a torch.Tensor, got {x!r}")
     for name, x in scalars.items():
         if isinstance(x, torch.Tensor):
             target = batch if name == "h" else (*batch, m)

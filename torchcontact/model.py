@@ -67,6 +67,11 @@ class ContactModel(nn.Module):
         )
 
 
+def _check_contacts(contacts: object) -> None:
+    if not isinstance(contacts, Contacts):
+        raise TypeError(f"contacts must be Contacts, got {type(contacts).__name__}")
+
+
 def _check_facets(facets: int) -> int:
     if not isinstance(facets, int) or facets < 3:
         raise ValueError(f"facets must be an integer >= 3, got {facets!r}")
@@ -194,6 +199,7 @@ class ComplementarityFree(ContactModel):
         return contacts.static_rows(self.facets) if self.support_pass else None
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        _check_contacts(contacts)
         contacts = self.calibrated(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
@@ -227,6 +233,7 @@ class AnitescuQP(ContactModel):
         self.settings = dict(settings or {})
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        _check_contacts(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         return qp_solve(Q, b, jac, phi, h, active, self.settings)
 
@@ -263,6 +270,7 @@ class RelaxedQP(ContactModel):
         )
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
+        _check_contacts(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         return relaxed_qp_velocity(
             Q, b, jac, phi, h, active, relaxation=self.relaxation, iterations=self.iterations
@@ -276,7 +284,7 @@ def paper_model(stiffness: float = 1.0) -> ComplementarityFree:
     """The paper's MPC model: constant K = ``stiffness``, D = 0.1·K (both fixed), γ = 100,
     n_d = 4."""
     return ComplementarityFree(
-        stiffness=Constant(stiffness, learnable=False),
+        stiffness=Constant(stiffness, learnable=False, name="stiffness"),
         damping=Relative(0.1, learnable=False),
         gamma=100.0,
         facets=4,

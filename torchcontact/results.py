@@ -148,7 +148,10 @@ def atomic_write(
 ) -> Path:
     """Call ``write(file)`` on a temporary file beside ``path``, then rename it onto ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # name the file, not the first folder that could not be made
+        raise type(error)(error.errno, f"cannot write {path}: {error.strerror}") from None
     handle, tmp = _temporary(path)
     try:
         with os.fdopen(handle, "wb" if binary else "w", **({} if binary else {"newline": ""})) as f:
@@ -203,6 +206,9 @@ def read_json(path: str | Path) -> Any:
 def write_csv(path: str | Path, rows: Iterable[Mapping[str, Any]]) -> Path:
     """Write dict rows as CSV; the header is the union of keys in first-seen order."""
     rows = list(rows)
+    for row in rows:
+        if not isinstance(row, Mapping):
+            raise TypeError(f"rows must be mappings of column to value, got {type(row).__name__}")
     columns = list(dict.fromkeys(key for row in rows for key in row))
 
     def write(f):

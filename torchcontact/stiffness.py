@@ -16,7 +16,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from torchcontact.contacts import Contacts
-from torchcontact.validation import check_shape, register
+from torchcontact.validation import check_count, check_shape, register
 
 
 def _log_positive(name: str, value: float) -> float:
@@ -55,9 +55,9 @@ class Parameterization(nn.Module):
 class Constant(Parameterization):
     """One value for every row, stored as its log so it stays positive while learned."""
 
-    def __init__(self, value: float = 1.0, learnable: bool = True):
+    def __init__(self, value: float = 1.0, learnable: bool = True, name: str = "value"):
         super().__init__()
-        _register_log(self, "log_value", _log_positive("value", value), learnable)
+        _register_log(self, "log_value", _log_positive(name, value), learnable)
 
     @property
     def value(self) -> float:
@@ -89,6 +89,7 @@ class PerRow(Parameterization):
 
 def _mlp(inputs: int, hidden: int, outputs: int, value: float) -> nn.Sequential:
     """Two hidden tanh layers; starts near ``value`` everywhere (small last layer)."""
+    check_count("hidden", hidden)
     net = nn.Sequential(
         nn.Linear(inputs, hidden),
         nn.Tanh(),
@@ -134,9 +135,8 @@ class StateNetwork(Parameterization):
 
     def __init__(self, nq: int, rows: int, hidden: int = 64, value: float = 1.0):
         super().__init__()
-        for name, n in (("nq", nq), ("rows", rows)):
-            if not isinstance(n, int) or n < 1:
-                raise ValueError(f"{name} must be a positive integer, got {n!r}")
+        check_count("nq", nq)
+        check_count("rows", rows)
         self.net = _mlp(nq, hidden, rows, value)
 
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:

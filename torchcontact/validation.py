@@ -126,6 +126,14 @@ def check_same_kind(reference: str, tensors: dict[str, object], dtype: bool = Tr
             )
 
 
+def check_count(name: str, n: object, minimum: int = 1) -> int:
+    """Return ``n`` if it is an integer (not a bool) >= ``minimum``, else raise ``ValueError``
+    naming ``name``."""
+    if isinstance(n, bool) or not isinstance(n, int) or n < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
+    return n
+
+
 def check_tensor(name: str, x: object) -> torch.Tensor:
     """Return ``x`` if it is a floating tensor, else raise ``TypeError`` naming ``name``."""
     if not isinstance(x, torch.Tensor):
