@@ -25,7 +25,7 @@ from torchcontact.cli import Parser
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
-from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES
+from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES, SETTING_LIMITS
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
 from torchcontact.mpc.controller import RESIDUAL_PLANS
@@ -210,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--address", default=None, help="(ray) a running cluster's address; default a local one"
     )
-    parser.add_argument("--out", type=Path, default=None, help="default results/VARIANT")
+    parser.add_argument("--out", type=_folder, default=None, help="default results/VARIANT")
     parser.add_argument("--json", type=Path, default=None, help="write the summary here too")
     parser.add_argument(
         "--figure", type=Path, default=None, help="write the results figure here too (.png)"
@@ -218,6 +218,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
     return parser
+
+
+def _folder(text: str) -> Path:
+    """``--out``: a folder's path; an empty one would write into the current folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a folder, got an empty path")
+    return Path(text)
 
 
 def _stiffness(text: str | None) -> float | str | None:
@@ -262,6 +269,11 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
     for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    for name, most in SETTING_LIMITS.items():
+        if getattr(args, name) is not None and getattr(args, name) > most:
+            parser.error(
+                f"--{name.replace('_', '-')} must be at most {most:,}, got {getattr(args, name)}"
+            )
     if args.trials > MAX_TRIALS:
         parser.error(f"--trials must be at most {MAX_TRIALS}, got {args.trials}")
     if args.first_seed < 0:

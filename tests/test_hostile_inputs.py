@@ -207,6 +207,9 @@ PARSER_ERRORS += [
     (["learn-k", "--residual", "-1"], "--residual must be a non-negative integer, got -1"),
     (["learn-k", "--no-such-option"], "unrecognized arguments: --no-such-option"),
     (["learn-k", "--object", ""], "--object must be one of"),
+    (["run", "fingertips", "--horizon", "100000000"], "--horizon must be at most 1,000, got"),
+    (["run", "fingertips", "--memory", "100000000"], "--memory must be at most 1,000, got"),
+    (["run", "fingertips", "--max-iter", "100000000"], "--max-iter must be at most 100,000"),
 ]
 
 
@@ -217,6 +220,11 @@ def test_a_command_line_error_is_one_line_and_points_to_help(tmp_path, capsys, a
     last = refused([*argv, *out], capsys, job, "")
     assert message in last and last.endswith(f"(see torchcontact {job} --help)")
     assert "usage:" not in last
+
+
+def test_an_empty_out_is_refused_instead_of_writing_into_the_current_folder(tmp_path, capsys):
+    last = refused(["run", "fingertips", "--out", ""], capsys, "run", "")
+    assert "--out: must name a folder, got an empty path" in last
 
 
 def test_an_unknown_job_is_one_line_too(capsys):
@@ -337,8 +345,10 @@ def test_trial_configs_takes_a_presets_name_as_from_env_does():
     [
         ("compile", "no", "compile must be True or False, got 'no'"),
         ("compile", 1, "compile must be True or False, got 1"),
-        ("max_iter", True, "max_iter must be a positive integer, got True"),
-        ("horizon", 0, "horizon must be a positive integer, got 0"),
+        ("max_iter", True, "max_iter must be an integer from 1 to 100,000, got True"),
+        ("horizon", 0, "horizon must be an integer from 1 to 1,000, got 0"),
+        ("horizon", 10**8, "horizon must be an integer from 1 to 1,000, got 100000000"),
+        ("memory", 1001, "memory must be an integer from 1 to 1,000, got 1001"),
         ("dtype", "float16", "dtype must be 'float32' or 'float64'"),
     ],
 )

@@ -28,6 +28,12 @@ at every planned state, inside the gradient (:mod:`~torchcontact.mpc.sources`). 
 ``"frozen"`` need the complementarity-free model."""
 
 
+SETTING_LIMITS = {"max_iter": 100_000, "memory": 1_000, "horizon": 1_000}
+"""The largest value each count of :class:`MPCSettings` takes: far beyond any plan that runs in
+a control step (the paper's are 30, 8 and 4), and small enough that a mistyped value is
+refused at once rather than allocating a rollout for minutes."""
+
+
 @dataclass(frozen=True)
 class MPCSettings:
     """The solver settings of a :class:`~torchcontact.mpc.controller.ContactImplicitMPC`.
@@ -50,10 +56,10 @@ class MPCSettings:
     gaps: str = "frozen"
 
     def __post_init__(self):
-        for name in ("max_iter", "memory", "horizon"):
+        for name, most in SETTING_LIMITS.items():
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= most:
+                raise ValueError(f"{name} must be an integer from 1 to {most:,}, got {value!r}")
         if not isinstance(self.compile, bool):
             raise ValueError(f"compile must be True or False, got {self.compile!r}")
         if self.dtype not in ("float32", "float64"):
