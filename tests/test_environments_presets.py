@@ -6,10 +6,10 @@ import pytest
 import torch
 
 from studies.mpc_tradeoff import GRID
+from torchcontact.cli.run import parse_args
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, PAPER, MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.evaluate import parse_args
 
 
 def test_every_environment_has_the_three_presets_and_balanced_is_the_default():

@@ -160,7 +160,7 @@ def test_an_environments_default_planner_is_what_its_mpc_and_trials_use(monkeypa
 
 
 def test_the_cli_takes_the_environments_planner_unless_told():
-    from torchcontact.mpc.evaluate import parse_args
+    from torchcontact.cli.run import parse_args
 
     assert parse_args(["allegro"]).planner == environment("allegro").planner == "lbfgs"
     assert parse_args(["allegro", "--planner", "hybrid"]).planner == "hybrid"

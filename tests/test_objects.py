@@ -15,9 +15,9 @@ import trimesh
 
 import torchcontact.cli
 from torchcontact import generated
+from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, PAPER_OBJECT_MASS, TRIFINGER_ENV
-from torchcontact.mpc.evaluate import configs_of, parse_args
 from torchcontact.mpc.trials import TrialConfig, object_facts
 from torchcontact.objects import ObjectOptions, is_mesh_file, resolve
 from torchcontact.shapes import MAX_MESH_EXTENT, OBJECT_SIZES, load_object, make_object

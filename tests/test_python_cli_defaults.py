@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.evaluate import configs_of, parse_args
 from torchcontact.mpc.models import default_model_fields
 from torchcontact.mpc.trials import build_trial, trial_configs
 from torchcontact.shipped import SHIPPED

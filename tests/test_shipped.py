@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from torchcontact.checkpoint import load_checkpoint
+from torchcontact.cli.run import parse_args
 from torchcontact.digests import file_sha256
 from torchcontact.environments import environment
-from torchcontact.mpc.evaluate import parse_args
 from torchcontact.mpc.trials import trial_configs, trial_inputs, trial_model
 from torchcontact.shipped import SHIPPED, shipped_environments, shipped_manifest, shipped_path
 from torchcontact.stiffness import Constant

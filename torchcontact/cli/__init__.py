@@ -17,11 +17,11 @@ import sys
 
 JOBS = {
     "run": (
-        "torchcontact.mpc.evaluate",
+        "torchcontact.cli.run",
         "closed-loop MPC trials in MuJoCo (e.g. run fingertips --task in-air --object cube)",
     ),
     "compare": (
-        "torchcontact.mpc.compare",
+        "torchcontact.cli.compare",
         "two runs' trial records side by side: trials won and lost, McNemar p-value",
     ),
     "learn-k": (

@@ -10,8 +10,8 @@ import pytest
 from scipy.stats import binomtest
 
 from torchcontact.cli import main as cli_main
+from torchcontact.cli.compare import compare_runs, load_run, mcnemar_p
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.mpc.compare import compare_runs, load_run, mcnemar_p
 from torchcontact.mpc.trials import run_trials, trial_configs
 from torchcontact.results import write_json
 

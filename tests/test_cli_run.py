@@ -6,9 +6,9 @@ import json
 import pytest
 
 from torchcontact.cli import main
+from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import PAPER_STIFFNESS, STIFFNESS
-from torchcontact.mpc.evaluate import configs_of, parse_args
 from torchcontact.mpc.report import SUMMARY_KEYS
 from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig, build_trial
 from torchcontact.relaxed_qp import PAPER_RELAXATION
