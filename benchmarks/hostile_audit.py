@@ -409,8 +409,6 @@ def core_cases(files: Files) -> Iterator[Case]:
         "facets='4'": {"facets": "4"},
         "facets=True": {"facets": True},
         "calibration='x'": {"calibration": "x"},
-        "support_pass='yes'": {"support_pass": "yes"},
-        "support_pass=1": {"support_pass": 1},
         "residual=3": {"residual": 3},
     }.items():
         names = (next(iter(kwargs)),)
@@ -498,8 +496,6 @@ def core_cases(files: Files) -> Iterator[Case]:
         "gamma=-3": {"gamma": -3.0},
         "h=0": {"h": 0.0},
         "h=nan": {"h": math.nan},
-        "second_pass=0.5": {"second_pass": torch.full((4 * nc,), 0.5, dtype=f64)},
-        "second_pass='x'": {"second_pass": "x"},
     }.items():
         jac, phi, _ = contacts.dual_rows(4)
         base = {"Q": Q, "b": b, "jac": jac, "phi": phi, "h": h, "stiffness": 3.0}
@@ -1249,8 +1245,8 @@ RECORD_DAMAGE = {
 
 
 def results_cases(files: Files) -> Iterator[Case]:
+    from torchcontact.cli.compare import compare_runs
     from torchcontact.environments.presets import MPCSettings
-    from torchcontact.mpc.compare import compare_runs
     from torchcontact.mpc.trials import record_status, run_trials, trial_configs, trial_inputs
 
     area = "results on disk"

@@ -416,26 +416,6 @@ def test_compiling_the_rows_and_the_step_warns_of_no_cache(monkeypatch, caplog, 
         assert torch.equal(fresh, facet_directions(facets, torch.float64))
 
 
-def test_static_rows_repeat_per_facet_and_exclude_padding():
-    contacts = Contacts(
-        phi=torch.zeros(3),
-        jac_normal=torch.randn(3, 4),
-        jac_tangent=torch.randn(3, 2, 4),
-        mu=torch.full((3,), 0.5),
-        active=torch.tensor([True, True, False]),
-        static=torch.tensor([True, False, True]),
-    )
-    rows = contacts.static_rows(facets=4)
-    assert rows.dtype == torch.bool
-    assert rows.tolist() == [True] * 4 + [False] * 8  # the padding slot's True is ignored
-    padded = contacts.padded(5)
-    assert padded.static.tolist() == [True, False, True, False, False]
-    assert padded.to(torch.float64).static.dtype == torch.bool
-    both = Contacts.stack([contacts, contacts])
-    assert both.static.shape == (2, 3)
-    assert contacts[None].static_rows(4).shape == (1, 12)
-
-
 def test_static_must_be_a_bool_tensor_of_the_slots_shape():
     fields = dict(
         phi=torch.zeros(2),
@@ -448,7 +428,5 @@ def test_static_must_be_a_bool_tensor_of_the_slots_shape():
         Contacts(**fields, static=torch.zeros(2))
     with pytest.raises(ValueError, match="static"):
         Contacts(**fields, static=torch.zeros(3, dtype=torch.bool))
-    with pytest.raises(ValueError, match="contacts.static is None"):
-        Contacts(**fields).static_rows(4)
     with pytest.raises(ValueError, match="all carry static"):
         Contacts.stack([Contacts(**fields), Contacts(**fields, static=torch.ones(2, dtype=bool))])

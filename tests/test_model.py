@@ -20,7 +20,6 @@ from torchcontact import (
     Relative,
     RelaxedQP,
     StateNetwork,
-    cf_velocity,
     contact_model,
 )
 
@@ -344,35 +343,3 @@ def test_nan_in_the_state_of_a_state_dependent_stiffness_names_q():
         model(Q, b, c, 0.1, q)
     with pytest.raises(ValueError, match="^q must be finite"):
         model.freeze(c, 0.1, q)
-
-
-def test_support_pass_resolves_the_static_contacts_second():
-    c = random_contacts(4, 6, inactive=1)
-    c = dataclasses.replace(c, static=torch.tensor([True, False, False, True]))
-    Q, b, h = random_metric(6, False), torch.randn(6, dtype=F64), 0.1
-    model = ComplementarityFree(stiffness=2.0, damping=Relative(0.1), support_pass=True).to(F64)
-    v, beta = model.row_impulses(Q, b, c, h)
-    jac, phi, active = c.dual_rows(4)
-    K, D = model.coefficients(c)
-    second = c.static_rows(4)
-    assert second.sum() == 4  # the first contact's rows: the last, static too, is padding
-    expected = cf_velocity(Q, b, jac, phi, h, K, D, 100.0, second_pass=second)
-    torch.testing.assert_close(v, expected)
-    torch.testing.assert_close(model(Q, b, c, h), expected)
-    frozen = model.freeze(c, h)
-    assert torch.equal(frozen.second_pass, second)
-    torch.testing.assert_close(frozen.velocity(Q, b), expected)
-    assert "support_pass=True" in repr(model)  # a compiled MPC graph's key tells them apart
-    model.support_pass = False
-    assert model.freeze(c, h).second_pass is None
-    assert "support_pass" not in repr(model)
-    assert not torch.allclose(model(Q, b, c, h), expected)
-
-
-def test_support_pass_needs_contacts_that_mark_static_bodies():
-    c = random_contacts(3, 6)
-    model = ComplementarityFree(stiffness=2.0, support_pass=True).to(F64)
-    with pytest.raises(ValueError, match="contacts.static is None"):
-        model(random_metric(6, False), torch.randn(6, dtype=F64), c, 0.1)
-    with pytest.raises(ValueError, match="support_pass must be True or False"):
-        ComplementarityFree(support_pass=1)

@@ -68,8 +68,8 @@ class Contacts:
         frame: optional ``(..., nc, 3, 3)`` world frame, rows (n, t₁, t₂), for features/plots.
         position: optional ``(..., nc, 3)`` world contact point [m].
         static: optional ``(..., nc)`` bool, True where the contact's other body is fixed in
-            the world (the ground, a palm no joint moves): the rows a model may resolve in a
-            second pass (:attr:`~torchcontact.model.ComplementarityFree.support_pass`).
+            the world (the ground, a palm no joint moves): the MPC's hold term counts the
+            other contacts as the fingers'.
     """
 
     phi: torch.Tensor
@@ -336,17 +336,6 @@ class Contacts:
         phi = self.phi.repeat_interleave(facets, dim=-1)
         active = self.active.repeat_interleave(facets, dim=-1)
         return jac, phi, active
-
-    def static_rows(self, facets: int = 4) -> torch.Tensor:
-        """``(..., nc·n_d)`` bool: the dual-cone rows (ordered as :meth:`dual_rows`) of active
-        contacts with a static body. Raises ``ValueError`` when the contacts carry no
-        :attr:`static`."""
-        if self.static is None:
-            raise ValueError(
-                "contacts.static is None: detect the contacts with a ContactDetector (which "
-                "marks those with a static body) or set it"
-            )
-        return (self.static & self.active).repeat_interleave(facets, dim=-1)
 
     def impulses(
         self, row_impulse: torch.Tensor, facets: int = 4

@@ -26,8 +26,6 @@ class FrozenComplementarityFree(NamedTuple):
         normal: Jⁿ ``(m, nv)``, each row's contact normal row (zero on padding), which
             :meth:`advance_gaps` moves φ̃ along.
         h: the model's time step [s]; gamma: softplus γ (None: exact ``max``).
-        second_pass: ``(m,)`` 0/1 rows resolved in a second pass (see
-            :func:`~torchcontact.functional.cf_velocity`), or None.
     """
 
     jac: torch.Tensor
@@ -37,7 +35,6 @@ class FrozenComplementarityFree(NamedTuple):
     normal: torch.Tensor
     h: float
     gamma: float | None
-    second_pass: torch.Tensor | None = None
 
     traceable = True
     """Its velocity is plain tensor algebra: ``torch.compile`` may trace it into a solver."""
@@ -49,9 +46,8 @@ class FrozenComplementarityFree(NamedTuple):
     def velocity(self, Q: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         """Next velocity ``(..., nv)`` for ``Q (..., nv)`` or ``(..., nv, nv)``, ``b (..., nv)``."""
         return cf_velocity(
-            Q, b, self.jac, self.phi, self.h, self.stiffness, self.damping, self.gamma,
-            self.second_pass,
-        )  # fmt: skip
+            Q, b, self.jac, self.phi, self.h, self.stiffness, self.damping, self.gamma
+        )
 
     def advance_gaps(self, v: torch.Tensor) -> FrozenComplementarityFree:
         """The step with φ̃ moved by the velocity ``v (..., nv)`` to first order along the

@@ -124,14 +124,11 @@ def _step_batch(Q, b, jac, phi) -> tuple[torch.Size, int]:
         ) from None
 
 
-def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass=None) -> None:
+def _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma) -> None:
     """Check a step's arguments, raising ``ValueError`` (``TypeError`` for non-tensors) naming
     the bad one. ``h``, ``stiffness`` and ``damping`` must broadcast to the batch shape of
-    ``Q, b, jac, phi`` (and its rows) without enlarging it, and lie on ``b``'s device;
-    ``second_pass``, if given, must be a 0/1 mask broadcastable to the rows ``(..., m)``."""
+    ``Q, b, jac, phi`` (and its rows) without enlarging it, and lie on ``b``'s device."""
     batch, m = _step_batch(Q, b, jac, phi)
-    if second_pass is not None:
-        _check_second_pass(second_pass, (*batch, m))
     scalars = {"h": h, "stiffness": stiffness, "damping": damping}
     for name, x in {**scalars, "gamma": gamma}.items():
         number = isinstance(x, (int, float)) and not isinstance(x, bool)
@@ -171,26 +168,15 @@ def cf_multipliers(
     stiffness: Scalar,
     damping: Scalar | None = None,
     gamma: float | None = 100.0,
-    second_pass: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, Callable[[torch.Tensor], torch.Tensor]]:
     """λ = softplus_γ(−K(J̃Q⁻¹b + φ̃) − D·J̃Q⁻¹b/h), shape ``(..., m)``, and the ``Q⁻¹`` solver.
 
-    Arguments as in :func:`cf_velocity`. λ·h is the impulse along each dual-cone row. With
-    ``second_pass``, its rows' λ is that formula at ``b + J̃ᵀλ₁`` instead of ``b``, λ₁ the
-    other rows' λ (zero on the second pass's rows).
+    Arguments as in :func:`cf_velocity`. λ·h is the impulse along each dual-cone row.
     """
-    _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass)
+    _check_step_inputs(Q, b, jac, phi, h, stiffness, damping, gamma)
     solve = metric_solver(Q, b)
-    h_rows = _batch_scalar(h)
-    lam = _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, solve(b))
-    if second_pass is None:
-        return lam, solve
-    later = second_pass.to(lam.dtype)
-    first = lam * (1 - later)
-    # the second pass's rows see the motion the first pass leaves, J̃Q⁻¹(b + J̃ᵀλ₁)
-    moved = solve(b + _matvec(jac.mT, first))
-    second = _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, moved) * later
-    return first + second, solve
+    lam = _row_multipliers(jac, phi, _batch_scalar(h), stiffness, damping, gamma, solve(b))
+    return lam, solve
 
 
 def _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, free_motion) -> torch.Tensor:
@@ -202,15 +188,6 @@ def _row_multipliers(jac, phi, h_rows, stiffness, damping, gamma, free_motion) -
     return softplus(argument, gamma)
 
 
-def _check_second_pass(second_pass, rows: tuple[int, ...]) -> None:
-    """``second_pass`` must be a 0/1 mask broadcastable to the rows' shape ``rows``."""
-    if not isinstance(second_pass, torch.Tensor):
-        raise TypeError(f"second_pass must be a torch.Tensor, got {type(second_pass).__name__}")
-    check_broadcasts_to("second_pass", second_pass, rows, "the rows (..., m)")
-    if checking_values() and not bool(((second_pass == 0) | (second_pass == 1)).all()):
-        raise ValueError("second_pass must hold only 0 and 1 (or False and True)")
-
-
 def cf_velocity(
     Q: torch.Tensor,
     b: torch.Tensor,
@@ -220,19 +197,13 @@ def cf_velocity(
     stiffness: Scalar,
     damping: Scalar | None = None,
     gamma: float | None = 100.0,
-    second_pass: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Next velocity of the complementarity-free model, ``(..., nv)``.
 
     v = Q⁻¹b/h + Q⁻¹J̃ᵀλ/h,  λ = softplus_γ(−K(J̃Q⁻¹b + φ̃) − D·J̃Q⁻¹b/h).
 
     Every row's λ answers the motion without contact, Q⁻¹b, so a row never answers another
-    row's force. ``second_pass`` resolves some rows after the others: their λ answers the
-    motion the first rows leave, Q⁻¹(b + J̃ᵀλ₁). With the contacts on a static support (the
-    ground) in the second pass, the support's friction answers a finger's push, at the base,
-    so a push at the centre of mass's height tips a tall object forwards, as the floor's
-    friction does to a rigid body, where one pass only slides it (docs/experiments.md,
-    "Contact model").
+    row's force.
 
     Args:
         Q: ``(..., nv)`` positive diagonal or ``(..., nv, nv)`` SPD metric
@@ -244,8 +215,6 @@ def cf_velocity(
         h: time step [s], a float or a tensor broadcastable to the batch shape ``(...)``.
         stiffness: K ≥ 0, a float or a tensor broadcastable to ``(..., m)``.
         damping: D ≥ 0 like ``stiffness``, or None for no damping.
-        second_pass: ``(..., m)`` bool or 0/1 mask of the rows resolved second, or None (one
-            pass, the paper's).
 
     The batch shape ``...`` is that of ``Q``, ``b``, ``jac`` and ``phi`` broadcast together:
     ``h``, ``stiffness`` and ``damping`` may not enlarge it (a ``ValueError`` names them), and
@@ -255,7 +224,7 @@ def cf_velocity(
     Returns:
         v⁺: ``(..., nv)`` next generalized velocity.
     """
-    lam, solve = cf_multipliers(Q, b, jac, phi, h, stiffness, damping, gamma, second_pass)
+    lam, solve = cf_multipliers(Q, b, jac, phi, h, stiffness, damping, gamma)
     return velocity_from_multipliers(solve, b, jac, lam, h)
 
 

@@ -91,11 +91,6 @@ class ComplementarityFree(ContactModel):
         calibration: a fitted :class:`~torchcontact.calibration.SystemCalibration` or None.
             The model scales its contacts' μ by the calibration's friction factor; the
             caller's system should be ``calibration.apply(system)`` (the MPC's is).
-        support_pass: resolve the contacts with a static body (``contacts.static``: the
-            ground, a fixed palm) in a second pass, on the motion the robot's contacts leave
-            (``second_pass`` of :func:`~torchcontact.functional.cf_velocity`), so the
-            support's friction answers a push; False: one pass, the paper's. An attribute:
-            set it on a loaded model too.
         residual: a fitted :class:`~torchcontact.residual.ObjectResidual` added to the
             objects' velocity, or None. It needs ``q``. A frozen step cannot apply it (it
             sees one state), so :meth:`freeze` refuses unless told that the caller applies it
@@ -113,13 +108,9 @@ class ComplementarityFree(ContactModel):
         gamma: float | None = 100.0,
         facets: int = 4,
         calibration: SystemCalibration | None = None,
-        support_pass: bool = False,
         residual: ObjectResidual | None = None,
     ):
         super().__init__()
-        if not isinstance(support_pass, bool):
-            raise ValueError(f"support_pass must be True or False, got {support_pass!r}")
-        self.support_pass = support_pass
         if gamma is not None and not (
             isinstance(gamma, (int, float))
             and not isinstance(gamma, bool)
@@ -190,21 +181,14 @@ class ComplementarityFree(ContactModel):
             normal.repeat_interleave(self.facets, dim=-2),
             float(h),
             self.gamma,
-            self.second_pass(contacts),
         )
-
-    def second_pass(self, contacts: Contacts) -> torch.Tensor | None:
-        """The rows ``(..., nc·n_d)`` resolved second: with :attr:`support_pass`, those of
-        contacts with a static body; else None."""
-        return contacts.static_rows(self.facets) if self.support_pass else None
 
     def row_impulses(self, Q, b, contacts: Contacts, h: Scalar, q=None):
         _check_contacts(contacts)
         contacts = self.calibrated(contacts)
         jac, phi, active = contacts.dual_rows(self.facets)
         K, D = self.coefficients(contacts, q)
-        second = self.second_pass(contacts)
-        lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma, second)
+        lam, solve = cf_multipliers(Q, b, jac, phi, h, K, D, self.gamma)
         lam = lam * active.to(lam.dtype)
         v = velocity_from_multipliers(solve, b, jac, lam, h)
         if self.residual is not None:
@@ -215,8 +199,7 @@ class ComplementarityFree(ContactModel):
 
     def extra_repr(self) -> str:
         # the repr names what a compiled MPC graph is specialised to (mpc.background.graph_key)
-        support = ", support_pass=True" if self.support_pass else ""
-        return f"gamma={self.gamma}, facets={self.facets}{support}"
+        return f"gamma={self.gamma}, facets={self.facets}"
 
 
 class AnitescuQP(ContactModel):
