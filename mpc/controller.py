@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -47,10 +48,11 @@ Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
 
 CONTACT_BUCKET = 4
-"""The MPC pads the detected contacts with inert slots to a multiple of this many: a compiled
-plan is specialised to its number of rows, so scenes of nearby slot counts share one compiled
-graph instead of compiling one each (a minute or more apiece). Padding rows are zero, so they
-change no velocity."""
+"""Without a slot capacity (the MPC's ``contact_slots``), or for contacts that exceed it, the
+MPC pads the detected contacts with inert slots to a multiple of this many: a compiled plan is
+specialised to its number of rows, so scenes of nearby slot counts share one compiled graph
+instead of compiling one each (a minute or more apiece). Padding rows are zero, so they change
+no velocity."""
 
 RESIDUAL_PLANS = ("fixed", "full")
 """How the MPC plans with a model's object residual. ``"fixed"``: the residual's correction
@@ -105,6 +107,13 @@ class ContactImplicitMPC:
             (L-BFGS has one); :attr:`Plan.compiled` tells which steps the graph planned.
         residual_plan: one of :data:`RESIDUAL_PLANS`, how a model's object residual enters
             the plan (no effect on a model without one).
+        contact_slots: the slot capacity: every solve's contacts are padded with inert slots
+            (zero rows) to this many, so that one compiled graph serves every object whose
+            detection fits (``from_env`` takes the plant's
+            :attr:`~torchcontact.sim.plant.Plant.contact_capacity`); contacts with more slots
+            are padded to their multiple of :data:`CONTACT_BUCKET` instead, a graph of their
+            own, with a warning the first time. None: every solve to its multiple of
+            :data:`CONTACT_BUCKET`.
     """
 
     def __init__(
@@ -125,7 +134,16 @@ class ContactImplicitMPC:
         background_compile: bool = False,
         residual_plan: str = "fixed",
         contacts_at: ContactsAt | None = None,
+        contact_slots: int | None = None,
     ):
+        if contact_slots is not None and (
+            isinstance(contact_slots, bool)
+            or not isinstance(contact_slots, int)
+            or contact_slots < 1
+        ):
+            raise ValueError(
+                f"contact_slots must be a positive integer or None, got {contact_slots!r}"
+            )
         if residual_plan not in RESIDUAL_PLANS:
             raise ValueError(
                 f"residual_plan must be one of {RESIDUAL_PLANS}, got {residual_plan!r}"
@@ -158,7 +176,8 @@ class ContactImplicitMPC:
             )
         self.layout, self.fingertips, self.cost = layout, fingertips, cost
         self.horizon, self.h, self.dtype, self.gaps = horizon, float(h), dtype, gaps
-        self.residual_plan = residual_plan
+        self.residual_plan, self.contact_slots = residual_plan, contact_slots
+        self._overflowed: set[int] = set()  # slot counts above contact_slots, warned about once
         self.planner = LBFGS(compile=compile) if planner is None else planner
         n_u = system.n_robot
         self.lower = torch.as_tensor(u_lower, dtype=dtype).expand(horizon, n_u).reshape(1, -1)
@@ -203,7 +222,9 @@ class ContactImplicitMPC:
         ``settings``: solver settings or a preset name (default the environment's default
         preset); ``cost``: a cost or a registered name (None: ``env.cost(plant)``). With all
         four None, the MPC is the one ``torchcontact run`` builds for ``env``'s defaults;
-        ``background_compile``, ``residual_plan``: as in the constructor.
+        ``background_compile``, ``residual_plan``: as in the constructor; ``contact_slots``
+        is the plant's :attr:`~torchcontact.sim.plant.Plant.contact_capacity`, the same for
+        every object of the environment, so their plans share one compiled graph.
         """
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
@@ -250,6 +271,7 @@ class ContactImplicitMPC:
             background_compile=background_compile,
             residual_plan=residual_plan,
             contacts_at=contacts_at,
+            contact_slots=getattr(plant, "contact_capacity", None),
         )
 
     def reset(self) -> None:
@@ -496,7 +518,7 @@ class ContactImplicitMPC:
         if self.gaps == "redetect":  # the solve's state: the (T, nq) anchors, the real one first
             q = anchor_states(self, q, contacts, self._warm.reshape(self.horizon, -1))
             contacts = redetected(self.contacts_at, q, contacts)
-        contacts = contacts.padded(-(-contacts.slots // CONTACT_BUCKET) * CONTACT_BUCKET)
+        contacts = contacts.padded(self.padded_slots(contacts.slots))
         if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out
             targets += (self._warm.reshape(self.horizon, -1).clone(),)
         inputs = (q, contacts, targets, self._warm.clone())
@@ -516,6 +538,22 @@ class ContactImplicitMPC:
             solve_ms=1e3 * (time.perf_counter() - start),
             compiled=compiled,
         )
+
+    def padded_slots(self, slots: int) -> int:
+        """The slot count a solve pads contacts of ``slots`` slots to: :attr:`contact_slots`
+        where they fit (one compiled graph for every object), else the multiple of
+        :data:`CONTACT_BUCKET` that holds them (a warning the first time for each count)."""
+        if self.contact_slots is not None and slots <= self.contact_slots:
+            return self.contact_slots
+        bucket = -(-slots // CONTACT_BUCKET) * CONTACT_BUCKET
+        if self.contact_slots is not None and slots not in self._overflowed:
+            self._overflowed.add(slots)
+            warnings.warn(
+                f"{slots} contact slots exceed the MPC's capacity of {self.contact_slots}: these "
+                f"plans are padded to {bucket} slots, a compiled graph of their own",
+                stacklevel=3,
+            )
+        return bucket
 
     def displacement(self, previous: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """The object's displacement ``(..., n_o)`` [m, rad] from ``previous`` to ``q`` (both

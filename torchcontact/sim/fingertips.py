@@ -34,6 +34,11 @@ solver then pushes out)."""
 
 TIP_BODIES = ("tip0", "tip1", "tip2")
 
+CONTACT_CAPACITY = 12
+"""The plant's :attr:`~torchcontact.sim.plant.Plant.contact_capacity`: the most slots the
+paper's scenes use (8 for cube and stick, 10 for the foam brick, 12 for our bunny), so their
+MPCs share one compiled graph where their other settings agree."""
+
 
 class FingertipsEnv(Plant):
     """MuJoCo plant of the three-fingertip tasks, built in code with ``MjSpec``.
@@ -102,6 +107,7 @@ class FingertipsEnv(Plant):
         self.detector = ContactDetector(
             self.model, [OBJECT_BODY], contact_slots, mu=contact_mu, overflow=overflow
         )
+        self.contact_capacity = CONTACT_CAPACITY
         self._tip_dofs = np.arange(6, 15)
         resting = np.array([0, 0, self.object.resting_height(), 1, 0, 0, 0], dtype=float)
         self.reset(resting, resting)

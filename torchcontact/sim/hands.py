@@ -83,6 +83,10 @@ class Hand:
         clear_start: whether :meth:`HandEnv.reset` moves the initial joints out of an object
             placed through a finger (:func:`~torchcontact.sim.clearance.clear_joints`);
             False keeps them, and the servos then press those fingers onto the object.
+        contact_capacity: the contact slots the MPC pads every object's contacts to, so that
+            one compiled graph serves all of this hand's objects
+            (:attr:`~torchcontact.sim.plant.Plant.contact_capacity`); None: each object's own
+            slots, rounded up.
     """
 
     name: str
@@ -105,6 +109,7 @@ class Hand:
     contact_margin: float = 0.0
     tip_sites: tuple[str, ...] | None = None
     clear_start: bool = True
+    contact_capacity: int | None = None
 
     def override(self, obj) -> ObjectOverride:
         """The overrides of built-in object ``obj`` (none for other names and meshes)."""
@@ -181,6 +186,9 @@ TRIFINGER = Hand(
     # measurement (docs/experiments.md, "TriFinger and Allegro MPC")
     contact_margin=0.005,
     tip_sites=("tip0", "tip1", "tip2"),  # the file's sites are tip0..tip2, not named *tip
+    # the built-ins need 10 slots (the ground's 4, 2 per tip), generated objects (seeds 0-99,
+    # 1000-1099) 10-12: one capacity holds them all (docs/compile_sharing_notes.md)
+    contact_capacity=12,
 )
 
 ALLEGRO = Hand(
@@ -217,6 +225,10 @@ ALLEGRO = Hand(
     # it there; moved clear, generated objects fell more (53 against 40 of 200 reported
     # trials) and the stick turned less (8 against 15 of 20) (docs/experiments.md, scenes 10)
     clear_start=False,
+    # objects resting on the palm touch it and the finger links curled around them: the
+    # built-ins need 13-20 slots, generated objects (seeds 0-99, 1000-1099) 12-34; one multiple
+    # of 4 holds them all (docs/compile_sharing_notes.md)
+    contact_capacity=36,
     # contact_margin stays 0: under the paper's soft K = 0.5 a row's force falls off over
     # 1/(γK) = 2 cm, so hovering links would push the modelled object (docs/experiments.md,
     # "TriFinger and Allegro MPC")
@@ -406,6 +418,7 @@ class HandEnv(Plant):
             overflow=overflow,
             per_pair=CONTACTS_PER_PAIR,
         )
+        self.contact_capacity = hand.contact_capacity
         self.reset(resting, resting)
 
     def _scene_spec(self, condim: int) -> mujoco.MjSpec:

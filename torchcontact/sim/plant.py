@@ -30,6 +30,12 @@ class Plant:
     object: ObjectMesh
     support_height: float = 0.0
     """Height [m] of the plane the object rests on: the ground, or a hand's palm."""
+    contact_capacity: int | None = None
+    """Contact slots the MPC pads this plant's contacts to, the same for every object of the
+    scene (:class:`~torchcontact.mpc.controller.ContactImplicitMPC`'s ``contact_slots``): a
+    compiled plan is specialised to its number of rows, so one capacity that holds every
+    object's :attr:`~torchcontact.sim.detect.ContactDetector.slots` lets one compiled graph
+    serve them all. None: each plant's own slots, rounded up to the MPC's bucket."""
 
     def __init__(self):
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
