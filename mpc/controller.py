@@ -31,6 +31,7 @@ from torchcontact.integrate import JointLayout, difference, integrate
 from torchcontact.model import ComplementarityFree, ContactModel, contact_model
 from torchcontact.mpc import planners
 from torchcontact.mpc.background import BackgroundCompile, graph_key
+from torchcontact.mpc.models import default_model
 from torchcontact.mpc.planners import LBFGS, Objective, Planner
 from torchcontact.mpc.sources import (
     MOVING,
@@ -212,9 +213,9 @@ class ContactImplicitMPC:
         ``model``: a contact model, a name of :data:`~torchcontact.model.MODELS` built with
         its defaults (the relaxed QP's κ is then the paper's at h = 0.1 s: for another h,
         pass ``RelaxedQP(paper_relaxation(h))``), or None for the model ``torchcontact run``
-        plans with (:func:`~torchcontact.mpc.trials.default_model`: the environment's shipped
+        plans with (:func:`~torchcontact.mpc.models.default_model`: the environment's shipped
         model where it ships one, the TriFinger's, otherwise the paper's at
-        ``env.default_stiffness``; with ``env.support_pass``); a model holding a fitted
+        ``env.default_stiffness``); a model holding a fitted
         :class:`~torchcontact.calibration.SystemCalibration` plans with the system it
         calibrates;
         ``planner``: a planner or a name of :data:`~torchcontact.mpc.planners.PLANNERS`,
@@ -229,8 +230,6 @@ class ContactImplicitMPC:
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
         if model is None:
-            from torchcontact.mpc.trials import default_model  # trials builds on this module
-
             model = default_model(env)
         elif isinstance(model, str):
             model = contact_model(model)
