@@ -95,6 +95,7 @@ LEGACY_DEFAULTS = {
     "object_scale": None,
     "object_mass": None,
     "object_friction": None,
+    "object_pose": "stable",
     "hold_first": 0,
     "hold_approach": 1.0,
     "residual_plan": "fixed",
@@ -123,7 +124,17 @@ INPUT_FILES = {"object_sha256": "object", "learned_sha256": "learned", "robot_sh
 VERSION_KEYS = ("torchcontact", "torch", "mujoco")
 """Libraries whose versions a record's ``inputs`` holds."""
 
-RELEASE_FIELDS = ("scenes", "inputs", *(f"inputs.{key}" for key in VERSION_KEYS))
+RESTING_RULE = "stable face from the centre of mass"
+"""A record's ``inputs.object_rest`` for a mesh file turned onto its stable face
+(:func:`~torchcontact.objects.mesh_rest`); records of meshes written before the rule lack it,
+and their trials are rerun."""
+
+RELEASE_FIELDS = (
+    "scenes",
+    "inputs",
+    "inputs.object_rest",
+    *(f"inputs.{key}" for key in VERSION_KEYS),
+)
 """Identity fields that change with a release of ours or of a library, not with what the user
 asked (``inputs``: a record naming files but written before inputs were recorded). A record
 differing only in these is set aside and run again; any other difference refuses the run."""
@@ -196,7 +207,8 @@ class TrialConfig:
         robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``).
         cost: a cost's registered name, None for the environment's.
         object_size, object_scale, object_mass, object_friction: the user's settings of the
-            object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's.
+            object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's;
+            object_pose: how a mesh file's object is posed (``"stable"`` or ``"as-is"``).
         hold_first: the contacts that must hold an object that tips before it slides before
             the plan moves it (:class:`~torchcontact.environments.costs.HoldFirst`; 0: none);
             :func:`trial_configs` gives the environment's unless told.
@@ -232,6 +244,7 @@ class TrialConfig:
     object_scale: float | None = None
     object_mass: float | None = None
     object_friction: float | None = None
+    object_pose: str = "stable"
     hold_first: int = 0
     hold_approach: float = 1.0
     residual_plan: str = "fixed"
@@ -240,7 +253,11 @@ class TrialConfig:
     def object_options(self) -> ObjectOptions:
         """The user's settings of the object."""
         return ObjectOptions(
-            self.object_size, self.object_scale, self.object_mass, self.object_friction
+            self.object_size,
+            self.object_scale,
+            self.object_mass,
+            self.object_friction,
+            self.object_pose,
         )
 
     @property
@@ -452,6 +469,8 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
         if not Path(path).is_file():
             raise ValueError(f"{field} must be an existing file, got {path!r} ({config.name})")
         inputs[key] = content_sha256(path, hashes)
+    stable = is_mesh_file(config.object) and config.object_pose == "stable"
+    inputs["object_rest"] = RESTING_RULE if stable else None
     return {**inputs, **library_versions()}
 
 
@@ -628,6 +647,7 @@ def _run_job(job: _Job) -> TrialRecord:
 
 _CONFIG_KINDS = {
     **dict.fromkeys(("env", "task", "object", "dtype", "model", "collision", "gaps"), "str"),
+    "object_pose": "str",
     **dict.fromkeys(("planner",), "str"),
     **dict.fromkeys(("seed", "max_steps", "max_iter", "memory", "horizon", "scenes"), "int"),
     "compile": "bool",

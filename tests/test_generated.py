@@ -13,7 +13,6 @@ from torchcontact import generated
 from torchcontact.environments import environment
 from torchcontact.generated import (
     ASPECT,
-    BASE_MARGIN,
     EXTENT,
     PARTS,
     REPORT_SEEDS,
@@ -24,6 +23,7 @@ from torchcontact.generated import (
     name,
     seed_of,
 )
+from torchcontact.resting import BASE_MARGIN
 from torchcontact.shapes import DEFAULT_MASS, convex
 from torchcontact.sim.hands import ROBOT_PREFIX, HandEnv
 

@@ -4,11 +4,9 @@ Each seed gives one object, the same on every machine: a union of 1–4 convex p
 (boxes, ellipsoids, cylinders, capsules, hulls of random point clouds), stretched to a
 bounding box whose aspect ratio (longest over shortest side) is drawn from 1:1 to 5:1, so flat
 plates, tall columns and long rods all occur, then turned onto its most likely stable face and
-scaled to a largest extent of 5–15 cm. The resting face is computed, not assumed: the
-quasi-static rest probabilities of the hull's faces about the union's centre of mass
-(``trimesh.poses.compute_stable_poses``), the most likely one kept whose edges, at the final
-aspect ratio, lie at least :data:`BASE_MARGIN` of the largest extent from below the centre of
-mass (the face of the widest margin where none does: a ball or a pebble rests on a point).
+scaled to a largest extent of 5–15 cm. The resting face is computed, not assumed, by the rule a
+user's mesh rests by (:func:`~torchcontact.resting.rest_on_stable_face`), its margin judged at
+the final aspect ratio.
 
 Seeds are split: seeds below :data:`REPORT_SEEDS` are for tuning, seeds from
 :data:`REPORT_SEEDS` on are the reported, held-out set. ``"random:N"`` names the first N of
@@ -28,6 +26,7 @@ import numpy as np
 import trimesh
 from trimesh.transformations import random_rotation_matrix
 
+from torchcontact.resting import rest_on_stable_face
 from torchcontact.shapes import COLLISIONS, DEFAULT_MASS, ObjectMesh, assemble, convex
 
 GENERATOR_VERSION = 1
@@ -52,10 +51,6 @@ ASPECT = (1.0, 5.0)
 
 EXTENT = (0.05, 0.15)
 """Range of the largest extent [m] of the resting object."""
-
-BASE_MARGIN = 0.05
-"""Least distance from the centre of mass to the resting face's edges, as a fraction of the
-largest extent, for a face to count as stable (a point or sliver face rocks off)."""
 
 _NAME = re.compile(rf"^{PREFIX}-(\d+)$")
 _COUNT = re.compile(rf"^{PREFIX}:(\d+)$")
@@ -134,7 +129,11 @@ def generate(
     parts = _parts(rng, count)
     shape = assemble(name(seed), parts, _box(rng), mass)
     sides = np.sort(_box(rng))
-    rested = _rest(shape, sides)
+
+    def stretched(rested: ObjectMesh) -> ObjectMesh:  # its margin judged as it will stand
+        return assemble(rested.name, rested.parts, _stretch(rested, sides), mass)
+
+    rested = rest_on_stable_face(shape, stretched).obj
     largest = float(rng.uniform(*EXTENT))
     if extent is not None:
         largest = _positive("extent", extent)
@@ -198,45 +197,7 @@ def _primitive(kind: str, dims: np.ndarray, rng: np.random.Generator) -> np.ndar
     return cloud / np.abs(cloud).max(0) * dims
 
 
-def _rest(obj: ObjectMesh, sides: np.ndarray) -> ObjectMesh:
-    """``obj`` turned onto one of its hull's stable faces: the most likely one (quasi-static
-    rest probabilities about the centre of mass) whose edges lie at least :data:`BASE_MARGIN`
-    of the largest extent from below the centre of mass once the object is stretched to
-    ``sides (3,)`` (:func:`_stretch`); the face of the widest such margin when none does.
-
-    An axis-aligned stretch keeps the resting face horizontal and the centre of mass over it,
-    but moves the face's edges relative to the extent, so the margin is judged after it."""
-    hull = convex(obj.vertices)
-    transforms, probabilities = trimesh.poses.compute_stable_poses(hull, obj.centre_of_mass)
-    candidates = []
-    for index in np.argsort(-probabilities, kind="stable"):
-        rotation = transforms[index][:3, :3]
-        parts = tuple(convex(part.vertices @ rotation.T) for part in obj.parts)
-        rested = assemble(obj.name, parts, _extents(parts), obj.mass)
-        stretched = assemble(obj.name, parts, _stretch(rested, sides), obj.mass)
-        margin = _base_margin(stretched)
-        if margin >= BASE_MARGIN * float(stretched.size.max()):
-            return rested
-        candidates.append((margin, rested))
-    margin, rested = max(candidates, key=lambda candidate: candidate[0])
-    if not margin > 0:
-        raise RuntimeError(f"{obj.name}: no face has its centre of mass over it")
-    return rested
-
-
 def _stretch(rested: ObjectMesh, sides: np.ndarray) -> np.ndarray:
     """The drawn ``sides (3,)`` (sorted) by rank onto ``rested``'s axes: the bounding box that
     sets the aspect ratio exactly and keeps the longest side along the longest axis."""
     return sides[np.argsort(np.argsort(rested.size))]
-
-
-def _base_margin(obj: ObjectMesh) -> float:
-    """Distance [m] from the centre of mass, seen from above, to the nearest edge of the base
-    (0 where it is not over the base)."""
-    base = obj.base()
-    return 0.0 if base is None else max(float(obj.edge_distances(base).min()), 0.0)
-
-
-def _extents(parts) -> np.ndarray:
-    vertices = np.concatenate([part.vertices for part in parts])
-    return vertices.max(0) - vertices.min(0)

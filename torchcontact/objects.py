@@ -1,5 +1,5 @@
 """Which object a scene holds: a built-in name, a generated name or a mesh file, and the
-user's choice of its size, mass and friction.
+user's choice of its size, mass, friction and, for a mesh file, its pose.
 
 No MuJoCo here: :func:`resolve` returns the :class:`~torchcontact.shapes.ObjectMesh` a plant
 turns into a body. The same options reach it from the CLI (``--object-size``,
@@ -15,14 +15,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from torchcontact import generated
+from torchcontact.resting import Rest, rest_on_stable_face
 from torchcontact.shapes import (
     COLLISIONS,
+    DEFAULT_MASS,
     MAX_MESH_EXTENT,
     OBJECT_SIZES,
     ObjectMesh,
     load_object,
     make_object,
 )
+
+POSES = ("stable", "as-is")
+"""How a mesh file's object is posed: ``"stable"`` turned onto its stable face from its centre
+of mass, as generated objects are (:func:`~torchcontact.resting.rest_on_stable_face`);
+``"as-is"`` as the file has it, its z axis up."""
 
 
 @dataclass(frozen=True)
@@ -37,12 +44,15 @@ class ObjectOptions:
             ``size``.
         mass: total mass [kg] (the scene's default otherwise: the paper's).
         friction: the object's sliding friction coefficient.
+        pose: how a mesh file's object is posed, one of :data:`POSES` (built-in and generated
+            objects rest as they are made).
     """
 
     size: float | None = None
     scale: float | None = None
     mass: float | None = None
     friction: float | None = None
+    pose: str = "stable"
 
     def __post_init__(self):
         for name in ("size", "scale", "mass"):
@@ -55,6 +65,8 @@ class ObjectOptions:
             )
         if self.size is not None and self.scale is not None:
             raise ValueError("object size and scale both set its size: give one of them")
+        if self.pose not in POSES:
+            raise ValueError(f"object pose must be one of {POSES}, got {self.pose!r}")
 
     @property
     def is_default(self) -> bool:
@@ -94,6 +106,8 @@ def resolve(
         if not options.is_default:
             raise ValueError("options must be empty for an ObjectMesh, which is used as it is")
         return obj
+    if options.pose != "stable" and not is_mesh_file(obj):
+        raise ValueError(f"object pose {options.pose!r} is for a mesh file, got {obj!r}")
     if isinstance(obj, str) and obj in OBJECT_SIZES:
         box = OBJECT_SIZES[obj] if listed_size is None else listed_size
         factor = _factor(options, max(box))
@@ -109,11 +123,35 @@ def resolve(
         decomposition = "hull" if collision == "hull" else "auto"
         # named apart from the built-in objects, whose names key the paper's scene facts
         name = f"mesh_{Path(obj).stem}"
-        return load_object(obj, options.size, mass, decomposition, name, options.scale)
+        loaded = load_object(obj, options.size, mass, decomposition, name, options.scale)
+        return loaded if options.pose == "as-is" else mesh_rest(loaded).obj
     raise ValueError(
         f"obj must be a built-in object among {tuple(OBJECT_SIZES)}, a generated object "
         f"('random-SEED'), a mesh file or an ObjectMesh, got {obj!r}"
     )
+
+
+def mesh_rest(obj: ObjectMesh) -> Rest:
+    """A mesh file's object on its stable face; ``ValueError`` where none has its centre of
+    mass over it (then only ``pose="as-is"`` places it)."""
+    try:
+        return rest_on_stable_face(obj)
+    except RuntimeError as error:
+        raise ValueError(
+            f"{error}: give pose 'as-is' (--object-pose as-is) to keep its file's"
+        ) from None
+
+
+def describe_pose(obj, options: ObjectOptions | None = None, collision: str = "auto") -> str:
+    """How :func:`resolve` poses ``obj`` under ``options``, in words (for a run's header)."""
+    options = ObjectOptions() if options is None else options
+    if not is_mesh_file(obj):
+        return "rests as made"
+    if options.pose == "as-is":
+        return "posed as in its file"
+    decomposition = "hull" if collision == "hull" else "auto"
+    loaded = load_object(obj, options.size, DEFAULT_MASS, decomposition, scale=options.scale)
+    return mesh_rest(loaded).describe()
 
 
 def _check_extent(obj: str, extent: float) -> None:

@@ -46,7 +46,7 @@ from torchcontact.mpc.trials import (
     run_trials,
     trial_configs,
 )
-from torchcontact.objects import ObjectOptions, is_mesh_file
+from torchcontact.objects import POSES, ObjectOptions, describe_pose, is_mesh_file, mesh_rest
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.results import (
     locked_folder,
@@ -91,6 +91,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--object-mass", type=float, default=None, help="[kg]; the MPC models it")
     parser.add_argument("--object-friction", type=float, default=None, help="sliding μ")
+    parser.add_argument(
+        "--object-pose",
+        choices=POSES,
+        default="stable",
+        help="(a mesh file) stable: turned onto its stable face from its centre of mass, as "
+        "generated objects are (default); as-is: as the file has it",
+    )
     parser.add_argument(
         "--trials", type=int, default=TRIALS, help="seeds first-seed…first-seed+trials−1"
     )
@@ -316,10 +323,19 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             for task, obj in env.select(args.task, args.object)
         ]
         args.object_options = ObjectOptions(
-            args.object_size, args.object_scale, args.object_mass, args.object_friction
+            args.object_size,
+            args.object_scale,
+            args.object_mass,
+            args.object_friction,
+            args.object_pose,
         )
+        named = [obj for _, obj in args.pairs if not is_mesh_file(obj)]
+        if args.object_pose != "stable" and named:
+            raise ValueError(
+                f"--object-pose {args.object_pose} is for mesh files, got {named[0]!r}"
+            )
         if not env.user_meshes and not args.object_options.is_default:
-            raise ValueError(f"--object-size/-scale/-mass/-friction are not for {args.env}")
+            raise ValueError(f"--object-size/-scale/-mass/-friction/-pose are not for {args.env}")
         # a cost option: a scene it applies to and a value that fits, before any trial
         if args.hold_first is not None or args.hold_approach is not None:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
@@ -369,7 +385,9 @@ def _load_inputs(args: argparse.Namespace, env) -> None:
     options = args.object_options
     for obj in sorted({obj for _, obj in args.pairs if is_mesh_file(obj)}):
         try:
-            load_object(obj, options.size, decomposition="hull", scale=options.scale)
+            loaded = load_object(obj, options.size, decomposition="hull", scale=options.scale)
+            if options.pose == "stable":
+                mesh_rest(loaded)
         except ValueError as error:
             raise ValueError(f"--object {obj!r} must be a usable mesh file: {error}") from None
 
@@ -412,6 +430,8 @@ def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
             f"object {Path(obj).name}: {extent} cm, {1e3 * facts['object_mass_kg']:g} g, "
             f"friction {facts['object_friction_mu']:g}, collides as {facts['object_collision']}"
         )
+        if is_mesh_file(obj):
+            lines[-1] += f"; {describe_pose(obj, args.object_options, args.collision)}"
     if len(objects) > at_most:
         lines.append(f"... and {len(objects) - at_most} more objects (each record stores its own)")
     return lines
