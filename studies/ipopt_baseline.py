@@ -167,7 +167,8 @@ def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: s
         )
     if mpc.gaps != "frozen":
         raise ValueError(f"the IPOPT baseline plans with frozen gaps, got gaps={mpc.gaps!r}")
-    if getattr(mpc.cost, "hold", None) is not None:
+    hold = getattr(mpc.cost, "hold", None)
+    if hold is not None and float(hold.applies):
         raise ValueError(
             "the IPOPT baseline states the paper's cost terms, not the hold term: build "
             "the MPC with env.cost(plant, hold_first=0)"
@@ -247,9 +248,9 @@ def _cost_functions(cost, tips, target_q):
 
     def state_cost(q):
         total = 0
-        if cost.tilt:
+        if cost.tilt_weight:
             up, target_up = _rotation(q[3:7])[:, 2], _rotation(target_q)[:, 2]
-            total += cost.tilt * (1 - cs.dot(up, target_up))
+            total += cost.tilt_weight * (1 - cs.dot(up, target_up))
         if cost.tip_height is not None:
             low, high = cost.tip_height
             for tip in tips(q):

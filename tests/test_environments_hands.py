@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -54,17 +55,36 @@ def test_a_plan_stays_in_its_box_and_lowers_the_cost(hand):
     assert float(planned) < float(idle)
 
 
+def leaned(T: int) -> torch.Tensor:
+    """``(T + 1, 4)`` quaternions leaned 0.3 rad about x."""
+    half = torch.tensor(0.15, dtype=torch.float64)
+    return torch.stack([half.cos(), half.sin(), half * 0, half * 0]).expand(T + 1, 4)
+
+
 def test_only_objects_that_tip_before_they_slide_get_the_tilt_cost():
     tipping = {name for name in object_names() if tips_before_sliding(make_object(name))}
     # the stick, a rod like the paper's, rolls over its narrow flat when pushed sideways
     assert tipping == {"binoculars", "camera", "rubber_duck", "stick", "water_bottle"}
     assert TRIFINGER_ENV.model.cost.tilt == 0  # the paper's cost
-    assert TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("cube")).tilt == 0
     weight = TRIFINGER_ENV.model.tilt
-    assert weight > 0 and TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("camera")).tilt == weight
+    # every object carries the term (one compiled graph), switched on where it tips
+    cube = TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("cube"))
+    assert cube.tilt == weight and float(cube.tilt_applies) == 0
+    camera = TRIFINGER_ENV.cost(TRIFINGER_ENV.make_plant("camera"))
+    assert weight > 0 and camera.tilt == weight and float(camera.tilt_applies) == 1
+    T = 2
+    f64 = {"dtype": torch.float64}
+    upright = torch.tensor([1.0, 0.0, 0.0, 0.0], **f64)
+    args = (torch.zeros(T + 1, 3, **f64), leaned(T), torch.zeros(T + 1, 3, 3, **f64),
+            torch.zeros(T, 9, **f64), torch.zeros(3, **f64), upright)  # fmt: skip
+    cube, camera = (dataclasses.replace(cost, hold=None) for cost in (cube, camera))  # aim: target
+    untilted = dataclasses.replace(cube, tilt=0.0)
+    assert torch.equal(cube(*args), untilted(*args))  # switched off: the cost without it
+    assert bool(camera(*args) > dataclasses.replace(camera, tilt=0.0)(*args))
     # the MPC takes the cost of its plant's object; the Allegro has no tilt weight
     duck = TRIFINGER_ENV.make_plant("rubber_duck")
-    assert ContactImplicitMPC.from_env(TRIFINGER_ENV, duck, settings=EAGER).cost.tilt == weight
+    planned = ContactImplicitMPC.from_env(TRIFINGER_ENV, duck, settings=EAGER).cost
+    assert planned.tilt == weight and float(planned.tilt_applies) == 1
     duck = ALLEGRO_ENV.make_plant("rubber_duck")
     assert ALLEGRO_ENV.model.tilt == 0
     assert ContactImplicitMPC.from_env(ALLEGRO_ENV, duck, settings=EAGER).cost.tilt == 0

@@ -139,7 +139,15 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     assert tips_before_sliding(tall.object) and not tips_before_sliding(wide.object)
     cost = env.cost(tall, hold_first=3)
     assert isinstance(cost, ManipulationCost) and cost.hold.grip == 3
-    assert env.cost(wide, hold_first=3).hold is None  # it slides: a lone push is safe
+    # it slides, so a lone push is safe: its hold is there (one graph) but switched off
+    off = env.cost(wide, hold_first=3).hold
+    off.observe(held_by(NEAR))
+    assert float(off.applies) == 0 and float(cost.hold.applies) == 1
+    start, target = torch.zeros(2, 4, 3, dtype=F64), torch.ones(3, dtype=F64)
+    quats = torch.tensor([1.0, 0, 0, 0], dtype=F64).expand(2, 4, 4)
+    aim, _ = off.aims(start, quats, target, quats[0, 0])
+    assert torch.equal(aim, target.expand(2, 3))  # the target, as without a hold
+    assert float(off.contact_weight(start)) == 1.0
     assert env.cost(tall, hold_first=0).hold is None
     assert env.cost(tall).hold.grip == env.hold_first == 2  # the TriFinger's default
     # the repr keys the compiled graphs: one graph for every held object

@@ -159,3 +159,19 @@ def test_a_second_object_of_another_slot_count_reuses_the_compiled_graph():
         assert plan.compiled
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
     assert counters["stats"]["unique_graphs"] == compiled_graphs
+
+
+def test_objects_that_tip_and_objects_that_slide_share_one_graph_key():
+    """The TriFinger's tilt term and hold switch per object by tensor inputs, not by the cost's
+    settings: the cube (slides) and the stick (tips before it slides) plan through one graph,
+    and the switches say which terms apply."""
+    env = environment("trifinger")
+    plants = [env.make_plant(obj) for obj in ("cube", "stick")]
+    mpcs = [_mpc(env, plant) for plant in plants]
+    pairs = zip(mpcs, plants, strict=True)
+    keys = {mpc._graph_key(plant.contacts(DT).padded(12)) for mpc, plant in pairs}
+    assert len(keys) == 1
+    (cube, stick) = (mpc.cost for mpc in mpcs)
+    assert repr(cube) == repr(stick)
+    assert (float(cube.hold.applies), float(stick.hold.applies)) == (0.0, 1.0)
+    assert (float(cube.tilt_applies), float(stick.tilt_applies)) == (0.0, 1.0)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import torch
@@ -87,17 +87,23 @@ class HoldFirst:
     draws them in, and at the paper's weight it moves them a few milliradians a step: a
     larger weight closes the grip sooner, and the weight returns to 1 once it holds.
 
-    ``held`` (a 0-d tensor, 1 or 0) is an input of a compiled plan, and the repr names the
-    settings only, so one graph serves every object.
+    ``applies`` (False: an object that slides before it tips, which a lone push moves safely)
+    switches the hold off: the target terms then aim at the target throughout, as without it.
+
+    ``held`` and ``applies`` (0-d tensors, 1 or 0) are inputs of a compiled plan, and the repr
+    names the settings only, so one graph serves every object.
     """
 
-    def __init__(self, grip: int = 2, approach: float = 1.0):
+    def __init__(self, grip: int = 2, approach: float = 1.0, applies: bool = True):
         if isinstance(grip, bool) or not isinstance(grip, int) or grip < 1:
             raise ValueError(f"grip must be a whole number of contacts >= 1, got {grip!r}")
         if not (math.isfinite(approach) and approach > 0):
             raise ValueError(f"approach must be a positive finite weight, got {approach!r}")
+        if not isinstance(applies, bool):
+            raise ValueError(f"applies must be True or False, got {applies!r}")
         self.grip, self.approach = grip, float(approach)
         self.held = torch.zeros((), dtype=torch.float64)
+        self.applies = torch.tensor(float(applies), dtype=torch.float64)
 
     def observe(self, contacts) -> None:
         """Set :attr:`held` from ``contacts``: 1 when at least :attr:`grip` contacts with
@@ -106,8 +112,8 @@ class HoldFirst:
 
     def contact_weight(self, like: torch.Tensor) -> torch.Tensor:
         """The contact term's multiplier (0-d, ``like``'s dtype and device): :attr:`approach`
-        while the object is not held, 1 once it is."""
-        return 1 + (self.approach - 1) * (1 - self.held.to(like))
+        while the object is not held (where the hold applies), 1 once it is."""
+        return 1 + (self.approach - 1) * (1 - self.held.to(like)) * self.applies.to(like)
 
     def aims(
         self,
@@ -116,9 +122,10 @@ class HoldFirst:
         target_position: torch.Tensor,
         target_quat: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The pose ``(..., 3), (..., 4)`` the plan aims at: the target when held, else the
-        start ``positions[..., 0, :]``, ``quats[..., 0, :]`` of the rollout."""
-        go = self.held.to(positions)
+        """The pose ``(..., 3), (..., 4)`` the plan aims at: the target when held (or where
+        the hold does not apply), else the start ``positions[..., 0, :]``, ``quats[..., 0, :]``
+        of the rollout."""
+        go = 1 - self.applies.to(positions) * (1 - self.held.to(positions))
         position = go * target_position + (1 - go) * positions[..., 0, :]
         return position, go * target_quat + (1 - go) * quats[..., 0, :]
 
@@ -138,6 +145,8 @@ class ManipulationCost:
     ``tilt`` (ours, default off) charges every planned state q₁…q_T for leaning its z axis away
     from the target's: the MPC then avoids pushes that its model predicts tip the object over,
     while turning it about that axis stays free.
+    ``tilt_applies`` (a 0-d tensor, 1 or 0; None: 1) switches it per object, an input of a
+    compiled plan rather than a setting, so one graph serves objects with and without it.
 
     ``tip_height = (low, high)`` [m] bounds the fingertips' planned heights q₁…q_T, as the
     paper's fingertip MPC does with hard state bounds (z ≥ 0, and z ≤ 0.1 m for the foam brick
@@ -167,8 +176,16 @@ class ManipulationCost:
     tip_height: tuple[float, float] | None = None
     tip_height_weight: float = 1e5
     tilt: float = 0.0
+    tilt_applies: torch.Tensor | None = field(default=None, repr=False, compare=False)
     contact_floor: float | None = None
     hold: HoldFirst | None = None
+
+    @property
+    def tilt_weight(self) -> float:
+        """The tilt term's weight on this object: :attr:`tilt`, or 0 where
+        :attr:`tilt_applies` switches it off."""
+        gate = 1.0 if self.tilt_applies is None else float(self.tilt_applies)
+        return self.tilt * gate
 
     def __call__(
         self,
@@ -204,7 +221,10 @@ class ManipulationCost:
         ).sum(-1)
         if self.tilt:
             target = target_quat.unsqueeze(-2)
-            path = path + self.tilt * tilt_cost(quats[..., 1:, :], target).sum(-1)
+            weight = (
+                self.tilt if self.tilt_applies is None else self.tilt * self.tilt_applies.to(path)
+            )
+            path = path + weight * tilt_cost(quats[..., 1:, :], target).sum(-1)
         final = self.position * position_cost(
             positions[..., -1, :], target_position
         ) + self.orientation * quaternion_error(quats[..., -1, :], target_quat)

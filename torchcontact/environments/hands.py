@@ -153,10 +153,14 @@ class HandEnvironment(Environment):
         approach = self.model.hold_approach if hold_approach is None else hold_approach
         if not (math.isfinite(approach) and approach > 0):
             raise ValueError(f"hold_approach must be a positive number, got {approach!r}")
-        if hold_first and tips_before_sliding(plant.object):
-            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, approach))
-        if self.model.tilt > 0 and tips_before_sliding(plant.object):
-            cost = dataclasses.replace(cost, tilt=self.model.tilt)
+        # every object gets the terms, switched off by an input where the object slides before
+        # it tips, so all objects share one compiled graph
+        tips = tips_before_sliding(plant.object)
+        if hold_first:
+            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, approach, applies=tips))
+        if self.model.tilt > 0:
+            gate = torch.tensor(float(tips), dtype=torch.float64)
+            cost = dataclasses.replace(cost, tilt=self.model.tilt, tilt_applies=gate)
         if self.model.contact_floor and isinstance(cost, ManipulationCost):
             floor = plant.support_height + plant.tip_clearance
             cost = dataclasses.replace(cost, contact_floor=floor)
