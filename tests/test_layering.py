@@ -41,7 +41,7 @@ def walk(package):
 print(json.dumps(sorted({{name for package in {packages!r} for name in walk(package)}})))
 """
 
-# Imports every module in a child forked from a process that holds only third-party packages
+# Imports the modules in a child forked from a process that holds only third-party packages
 # (loaded once, to save time), and prints, per module, the loaded modules under the forbidden
 # prefixes and the import statements naming them anywhere in the module's source
 # (function-level imports included), or the import error.
@@ -75,16 +75,16 @@ def static_imports(name):
     return found
 
 
-report = {{}}
-for name in modules:
+def in_child(names):
+    # Import names in a forked child; the forbidden modules it loaded, or the error.
     read, write = os.pipe()
     pid = os.fork()
     if pid == 0:
         os.close(read)
         try:
-            importlib.import_module(name)
+            for name in names:
+                importlib.import_module(name)
             found = [f"loads {{m}}" for m in sorted(sys.modules) if matches(m)]
-            found += static_imports(name)
         except BaseException as error:
             found = [f"import failed: {{type(error).__name__}}: {{error}}"]
         with os.fdopen(write, "w") as pipe:
@@ -94,6 +94,14 @@ for name in modules:
     with os.fdopen(read) as pipe:
         found = json.loads(pipe.read() or '["the child process died"]')
     os.waitpid(pid, 0)
+    return found
+
+
+# All modules in one child first; one child per module only to name the culprits.
+culprits = modules if in_child(modules) else []
+report = {{}}
+for name in modules:
+    found = (in_child([name]) if name in culprits else []) + static_imports(name)
     if found:
         report[name] = found
 print(json.dumps(report))
