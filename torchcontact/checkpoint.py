@@ -8,17 +8,22 @@ alone. Pure torch: the MPC loads a learned model without the learning package.
 
 from __future__ import annotations
 
+import datetime
+import importlib.metadata
 import io
+import json
 import math
 import pickle
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Protocol
 
 import torch
 
 from torchcontact.calibration import OPTIONAL, PARTS, SystemCalibration
+from torchcontact.digests import file_sha256
 from torchcontact.integrate import object_indices
 from torchcontact.model import ComplementarityFree
 from torchcontact.networks import ObjectContactNetwork
@@ -33,9 +38,33 @@ from torchcontact.stiffness import (
     StateNetwork,
 )
 
-STIFFNESS_KINDS = ("constant", "per_row", "contact_network", "state_network", "object_network")
-"""Learnable parameterizations of K: those of :mod:`torchcontact.stiffness` and
-:class:`~torchcontact.networks.ObjectContactNetwork`."""
+
+def _rows(meta: dict) -> int:
+    """Rows of K per step: slots × facets."""
+    return meta["slots"] * meta["facets"]
+
+
+Factory = Callable[[float, dict, "FitConfig"], Parameterization]
+"""``(value, meta, config) ↦`` a learnable parameterization started at ``value`` everywhere."""
+
+PARAMETERIZATIONS: dict[str, Factory] = {
+    "constant": lambda value, meta, config: Constant(value),
+    "per_row": lambda value, meta, config: PerRow(_rows(meta), value),
+    "contact_network": lambda value, meta, config: ContactNetwork(
+        config.hidden, value, config.distance_scale
+    ),
+    "state_network": lambda value, meta, config: StateNetwork(
+        meta["nq"], _rows(meta), hidden=config.hidden, value=value
+    ),
+    "object_network": lambda value, meta, config: ObjectContactNetwork(
+        meta["facets"], config.hidden, value, config.distance_scale
+    ),
+}
+"""The learnable parameterizations of K (and of D) by name: those of
+:mod:`torchcontact.stiffness` and :class:`~torchcontact.networks.ObjectContactNetwork`."""
+
+STIFFNESS_KINDS = tuple(PARAMETERIZATIONS)
+"""The names of :data:`PARAMETERIZATIONS`."""
 
 DAMPING_KINDS = ("paper", "none", "relative", *STIFFNESS_KINDS)
 """D: ``"paper"`` fixed 0.1·K, ``"none"``, ``"relative"`` a learned ratio·K, or its own
@@ -47,6 +76,11 @@ first state, held (as the MPC plans); ``"geometry"`` re-evaluated at every predi
 the object's torch contact geometry (:func:`~torchcontact.sim.geometry.scene_geometry`)."""
 
 CHECKPOINT_VERSION = 1
+
+META_KEYS = ("gamma", "facets", "slots", "nq", "nv", "nu", "joints", "paper_stiffness")
+"""What :func:`build_model` reads from a dataset's ``meta``: γ, facets n_d, contact slots nc,
+nq, nv, nu, the joint types of q (its state layout) and the K [N/m] a model starts at when
+its config names none."""
 
 
 class CheckpointError(ValueError):
@@ -128,8 +162,13 @@ class FitConfig:
             raise ValueError(
                 f"robot_weight must be non-negative and finite, got {self.robot_weight!r}"
             )
-        if not (math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+        for name in ("lr", "distance_scale"):
+            value = getattr(self, name)
+            if not (_is_number(value) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        seed = self.seed
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         if self.loss_contacts not in LOSS_CONTACTS:
             raise ValueError(
                 f"loss_contacts must be one of {LOSS_CONTACTS}, got {self.loss_contacts!r}"
@@ -141,25 +180,35 @@ class FitConfig:
             )
 
 
-def _parameterization(kind: str, value: float, meta: dict, config: FitConfig) -> Parameterization:
-    rows = meta["slots"] * meta["facets"]
-    if kind == "constant":
-        return Constant(value)
-    if kind == "per_row":
-        return PerRow(rows, value)
-    if kind == "contact_network":
-        return ContactNetwork(config.hidden, value, config.distance_scale)
-    if kind == "state_network":
-        return StateNetwork(meta["nq"], rows, hidden=config.hidden, value=value)
-    return ObjectContactNetwork(meta["facets"], config.hidden, value, config.distance_scale)
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_types(config, meta) -> None:
+    """``TypeError`` naming ``config`` or ``meta`` when it is not a FitConfig or a dict, and
+    ``ValueError`` naming the keys of :data:`META_KEYS` that ``meta`` lacks."""
+    if not isinstance(config, FitConfig):
+        raise TypeError(f"config must be a FitConfig, got {type(config).__name__}")
+    if not isinstance(meta, dict):
+        raise TypeError(f"meta must be a dict (a dataset's meta), got {type(meta).__name__}")
+    missing = [key for key in META_KEYS if key not in meta]
+    if missing:
+        raise ValueError(
+            f"meta must hold {', '.join(META_KEYS)} (what rebuilds the model); it lacks "
+            f"{', '.join(missing)}"
+        )
 
 
 def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
     """The scene's model (γ, facets of ``meta``) with the learnable K and D of ``config``, and
-    its residual (unfitted: zero) when ``config.residual``."""
+    its residual (unfitted: zero) when ``config.residual``.
+
+    ``meta`` holds at least :data:`META_KEYS`; ``TypeError`` or ``ValueError`` naming the
+    argument otherwise. Seeds torch's global generator with ``config.seed``."""
+    _check_types(config, meta)
     torch.manual_seed(config.seed)
     value = config.initial_stiffness or meta["paper_stiffness"]
-    stiffness = _parameterization(config.stiffness, value, meta, config)
+    stiffness = PARAMETERIZATIONS[config.stiffness](value, meta, config)
     if config.damping == "paper":
         damping = Relative(0.1, learnable=False)
     elif config.damping == "relative":
@@ -167,7 +216,7 @@ def build_model(config: FitConfig, meta: dict) -> ComplementarityFree:
     elif config.damping == "none":
         damping = None
     else:
-        damping = _parameterization(config.damping, 0.1 * value, meta, config)
+        damping = PARAMETERIZATIONS[config.damping](0.1 * value, meta, config)
     calibration = SystemCalibration(meta["nu"], config.calibrate) if config.calibrate else None
     residual = None
     if config.residual:
@@ -195,7 +244,24 @@ def constant_model(stiffness: float, meta: dict) -> ComplementarityFree:
 
 
 def save_checkpoint(path: str | Path, model: ComplementarityFree, config: FitConfig, meta: dict):
-    """Write ``model``'s ``state_dict`` with ``config`` and the dataset ``meta`` atomically."""
+    """Write ``model``'s ``state_dict`` with ``config`` and the dataset ``meta`` atomically.
+
+    ``TypeError`` naming the argument that is not a ComplementarityFree, a FitConfig or a
+    dict; ``ValueError`` when ``meta`` lacks a key of :data:`META_KEYS` or ``model`` is not
+    the architecture ``config`` and ``meta`` rebuild (:func:`build_model`), so that every file
+    written loads."""
+    if not isinstance(model, ComplementarityFree):
+        raise TypeError(f"model must be a ComplementarityFree, got {type(model).__name__}")
+    _check_types(config, meta)
+    with torch.random.fork_rng(devices=[]):  # build_model seeds the global generator
+        rebuilt = build_model(config, meta).to(_dtype(model.state_dict()))
+    try:
+        rebuilt.load_state_dict(model.state_dict())
+    except RuntimeError as error:
+        raise ValueError(
+            f"model is not the architecture config and meta describe ({_first_line(error)}): "
+            "build it with build_model(config, meta)"
+        ) from None
     payload = {
         "version": CHECKPOINT_VERSION,
         "config": asdict(config),
@@ -207,11 +273,27 @@ def save_checkpoint(path: str | Path, model: ComplementarityFree, config: FitCon
     return atomic_write(path, lambda f: f.write(buffer.getvalue()), binary=True)
 
 
+def _dtype(state: dict) -> torch.dtype:
+    """The dtype of a state dict's first floating tensor (float32 when it holds none)."""
+    return next((x.dtype for x in state.values() if x.is_floating_point()), torch.float32)
+
+
+def _first_line(error: Exception) -> str:
+    """``error``'s message in one line: torch's state-dict errors list one mismatch a line;
+    the first is named, with how many more there are."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+        lines = lines[1:]  # the header names only the class
+    more = f" and {len(lines) - 1} more" if len(lines) > 1 else ""
+    return (lines[0].rstrip(".") if lines else type(error).__name__) + more
+
+
 def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, dict]:
     """Rebuild the model saved by :func:`save_checkpoint`: ``(model, config, meta)``.
 
-    Raises :class:`CheckpointError` naming the file when it is unreadable, not a checkpoint
-    (only tensors and plain data are ever unpickled) or of another version.
+    Raises :class:`CheckpointError` in one line naming the file when it is unreadable, not a
+    checkpoint (only tensors and plain data are ever unpickled), of another version, or does
+    not rebuild its model (a meta without its state layout, weights of other sizes).
     """
     path = Path(path)
     try:
@@ -223,27 +305,31 @@ def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, d
     except IsADirectoryError:
         raise CheckpointError(f"{path}: a directory, not a checkpoint file") from None
     except Exception as error:  # whatever torch's loader raises on bytes that are no checkpoint
-        reason = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-        raise CheckpointError(f"{path}: not a readable checkpoint ({reason})") from None
+        raise CheckpointError(f"{path}: not a readable checkpoint ({_reason(error)})") from None
     if not isinstance(payload, dict) or payload.get("version") != CHECKPOINT_VERSION:
         found = payload.get("version") if isinstance(payload, dict) else None
         raise CheckpointError(
             f"{path}: not a torchcontact checkpoint: expected version {CHECKPOINT_VERSION}, "
             f"found {found!r}"
         )
+    meta = payload.get("meta")
+    if not isinstance(meta, dict) or not meta.get("joints"):
+        raise CheckpointError(
+            f"{path}: a damaged checkpoint: its meta records no joints (the state layout it "
+            "was learned on)"
+        )
     try:
         config = FitConfig(**payload["config"])
-        meta = payload["meta"]
         model = build_model(config, meta)
         state = payload["state_dict"]
-        model = model.to(next(iter(state.values())).dtype)
+        model = model.to(_dtype(state))
         model.load_state_dict(state)
         broken = [
             key for key, x in state.items() if x.is_floating_point() and not x.isfinite().all()
         ]
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, StopIteration) as error:
         raise CheckpointError(
-            f"{path}: a damaged checkpoint: it does not rebuild its model ({error})"
+            f"{path}: a damaged checkpoint: it does not rebuild its model ({_reason(error)})"
         ) from None
     if broken:
         raise CheckpointError(
@@ -252,30 +338,105 @@ def load_checkpoint(path: str | Path) -> tuple[ComplementarityFree, FitConfig, d
     return model, config, meta
 
 
+def _reason(error: Exception) -> str:
+    """``"Type: message"`` of ``error`` in one line (:func:`_first_line`)."""
+    if not str(error):
+        return type(error).__name__
+    message = _first_line(error) if isinstance(error, RuntimeError) else str(error)
+    return f"{type(error).__name__}: {' '.join(message.split())}"
+
+
 def _joints(joints: Sequence[str]) -> str:
     """``"free + 9 hinge"``: joint types and counts in order of first appearance."""
     counts = Counter(joints)
     return " + ".join(kind if n == 1 else f"{n} {kind}" for kind, n in counts.items()) or "none"
 
 
+def _where(scene: str | None) -> str:
+    """Where a checkpoint was learned, for messages: an environment's name or a user's robot."""
+    return "on a user's robot" if scene is None else f"in the {scene!r} environment"
+
+
 def check_fits(path: str | Path, meta: dict, env: str | None, joints: Sequence[str]) -> None:
-    """Refuse, with :class:`CheckpointError` naming the file, a checkpoint (its ``meta``)
-    learned in another environment than ``env`` (None: any, for a user's robot) or on states
-    of other ``joints`` than the MPC's (its state layout)."""
+    """Refuse, with :class:`CheckpointError` in one line naming the file and both sides, a
+    checkpoint (its ``meta``) learned in another environment than ``env`` (None: a user's
+    robot, which takes a checkpoint saved for a user's robot, ``meta["scene"]`` None) or on
+    states of other ``joints`` than the MPC's (its state layout)."""
     scene = meta.get("scene")
-    if env is not None and scene != env:
-        raise CheckpointError(
-            f"{path}: a checkpoint learned in the {scene!r} environment, not {env!r}: plan "
-            f"{env} with a model learned there (learn-k --scene {env})"
-        )
     learned = list(meta.get("joints") or ())
+    if scene != env and env is not None:
+        raise CheckpointError(
+            f"{path}: a checkpoint learned {_where(scene)}, not {env!r}: plan {env} with a "
+            f"model learned there (learn-k --scene {env})"
+        )
+    if scene != env:
+        raise CheckpointError(
+            f"{path}: a checkpoint learned {_where(scene)} on states of joints "
+            f"{_joints(learned)}, not for this robot (joints {_joints(joints)}): fit a model on "
+            "its transitions (learn.fit.fit, then save_model)"
+        )
     if learned != list(joints):
         raise CheckpointError(
             f"{path}: learned on states of joints {_joints(learned)}, but this scene's are "
-            f"{_joints(joints)}: learn a model on this scene"
+            f"{_joints(joints)} (learned {_where(scene)}): learn a model on "
+            "this scene"
         )
 
 
 def load_model(path: str | Path) -> ComplementarityFree:
-    """The model of the checkpoint at ``path`` (see :func:`load_checkpoint`)."""
+    """The model of the checkpoint at ``path`` (see :func:`load_checkpoint`), as
+    :func:`save_model` or ``learn-k`` wrote it."""
     return load_checkpoint(path)[0]
+
+
+class Fitted(Protocol):
+    """What :func:`save_model` saves: a :class:`~torchcontact.learn.fit.FitResult`."""
+
+    model: ComplementarityFree
+    config: FitConfig
+    meta: dict
+    manifest: dict
+
+
+def save_model(path: str | Path, fitted: Fitted) -> Path:
+    """Write the fitted model of :func:`torchcontact.learn.fit.fit` at ``path`` (a
+    :func:`save_checkpoint` file that :func:`load_model` and ``torchcontact run ENV --learned
+    PATH`` read), and its manifest beside it, ``path`` with the suffix ``.json``: the fit's
+    own record (data size, settings, validation figures), the library versions, the date and
+    the file's SHA-256.
+
+    The checkpoint is for the environment ``fitted.meta["scene"]`` (``fit(..., scene=ENV)``),
+    or, when None, for a user's robot (``run custom --robot ...``). ``TypeError`` naming
+    ``fitted`` when it is not a fit's result. Returns the checkpoint's path."""
+    missing = [
+        name for name in ("model", "config", "meta", "manifest") if not hasattr(fitted, name)
+    ]
+    if missing:
+        raise TypeError(
+            f"fitted must be the result of torchcontact.learn.fit.fit (a FitResult), got "
+            f"{type(fitted).__name__} without {', '.join(missing)}"
+        )
+    path = Path(path)
+    save_checkpoint(path, fitted.model, fitted.config, fitted.meta)
+    manifest = {
+        "environment": fitted.meta.get("scene"),
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "sha256": file_sha256(path),
+        **fitted.manifest,
+        "versions": library_versions(),
+    }
+    text = json.dumps(manifest, indent=2, sort_keys=False) + "\n"
+    atomic_write(path.with_suffix(".json"), lambda f: f.write(text))
+    return path
+
+
+def library_versions() -> dict[str, str]:
+    """The installed versions of torchcontact, torch and MuJoCo (``"unknown"`` for one that
+    is not installed as a distribution), read without importing them."""
+    versions = {}
+    for name in ("torchcontact", "torch", "mujoco"):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "unknown"
+    return versions

@@ -77,7 +77,23 @@ def _check_digest(path: str, size: int, mtime_ns: int) -> None:
         )
 
 
-def resolve_learned(learned: str | None, env: str) -> str | None:
+def resolve_learned(learned: str | Path | None, env: str) -> str | None:
     """A trial's ``learned`` as a file path: :data:`SHIPPED` ↦ ``env``'s shipped model,
-    checked against its manifest (:func:`check_shipped`)."""
-    return str(check_shipped(shipped_path(env))) if learned == SHIPPED else learned
+    checked against its manifest (:func:`check_shipped`); a path ↦ itself, as a string; None
+    ↦ None. ``ValueError`` naming ``learned`` when it is neither :data:`SHIPPED` nor the path
+    of an existing file (``TypeError`` when it is no string or path)."""
+    if learned is None:
+        return None
+    if learned == SHIPPED:
+        return str(check_shipped(shipped_path(env)))
+    if not isinstance(learned, (str, Path)):
+        raise TypeError(
+            f"learned must be {SHIPPED!r} or a checkpoint's path, got {type(learned).__name__}"
+        )
+    if not Path(learned).is_file():
+        raise ValueError(
+            f"learned (--learned) must be {SHIPPED!r} ({env}'s shipped model) or the path of an "
+            "existing checkpoint file (the model.pt of learn-k or save_model), got "
+            f"{str(learned)!r}"
+        )
+    return str(learned)
