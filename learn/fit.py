@@ -26,11 +26,11 @@ from dataclasses import dataclass, fields
 import torch
 from tqdm.auto import tqdm
 
-from torchcontact.checkpoint import FitConfig
+from torchcontact.checkpoint import FitConfig, build_model
 from torchcontact.contacts import Contacts
 from torchcontact.environments.costs import position_cost
 from torchcontact.integrate import JOINT_SIZES, JointLayout, integrate, object_indices
-from torchcontact.learn.data import Transitions, affine_system
+from torchcontact.learn.data import Transitions, affine_system, system_header
 from torchcontact.model import ComplementarityFree
 from torchcontact.rotations import quaternion_error
 from torchcontact.systems import QuasiDynamic, carry_momentum
@@ -401,6 +401,12 @@ class FitResult:
         best_epoch: the epoch whose state was kept (0: the initial model).
         val_loss: its validation loss.
         seconds: wall time of the training loop.
+        config: the fit's settings (:func:`fit`: those that rebuild ``model``).
+        meta: what rebuilds ``model`` with ``config``
+            (:func:`~torchcontact.checkpoint.build_model`), set by :func:`fit`; None from
+            :func:`fit_steps`, whose windows carry their dataset's.
+        manifest: the fit's record for :func:`~torchcontact.checkpoint.save_model`: data
+            sizes, settings, validation figures (set by :func:`fit`).
     """
 
     model: ComplementarityFree
@@ -408,6 +414,9 @@ class FitResult:
     best_epoch: int
     val_loss: float
     seconds: float
+    config: FitConfig | None = None
+    meta: dict | None = None
+    manifest: dict | None = None
 
 
 def _evaluate_loss(
@@ -525,11 +534,45 @@ def adam_with_early_stopping(
         elif epoch - best_epoch >= config.patience:
             break
     module.load_state_dict(best_state)
-    return FitResult(module, history, best_epoch, best, time.perf_counter() - start)
+    seconds = time.perf_counter() - start
+    return FitResult(module, history, best_epoch, best, seconds, config)
+
+
+def tensor_meta(
+    model: ComplementarityFree,
+    contacts: Contacts,
+    system: QuasiDynamic,
+    h: float,
+    joints: Sequence[str],
+    weights: tuple[float, float] = (500.0, 5.0),
+    scene: str | None = None,
+    initial_stiffness: float = 1.0,
+) -> dict:
+    """The dataset ``meta`` of plain tensors (the keys of :data:`~torchcontact.checkpoint
+    .META_KEYS` and the system's), what :func:`~torchcontact.checkpoint.build_model` rebuilds
+    ``model`` from: γ and facets of ``model``, the slots of ``contacts``, the layout of
+    ``joints``, ``system``'s Q, b0 and B, ``h`` [s]. ``scene``: the environment the data
+    come from (None: a user's robot); ``initial_stiffness``: K [N/m] of a config naming none."""
+    layout = JointLayout(joints)
+    header = system_header(system)
+    return {
+        "scene": scene,
+        "h": float(h),
+        "gamma": model.gamma,
+        "facets": model.facets,
+        "paper_stiffness": float(initial_stiffness),
+        "joints": list(layout.joints),
+        "pose_weights": [float(w) for w in weights],
+        "system": header,
+        "nq": layout.nq,
+        "nv": layout.nv,
+        "nu": len(header["B"][0]),
+        "slots": contacts.slots,
+    }
 
 
 def fit(
-    model: ComplementarityFree,
+    model: ComplementarityFree | None,
     q: torch.Tensor,
     u: torch.Tensor,
     q_next: torch.Tensor,
@@ -542,6 +585,7 @@ def fit(
     val_fraction: float = 0.2,
     progress: bool = True,
     displacement: torch.Tensor | None = None,
+    scene: str | None = None,
 ) -> FitResult:
     """Fit ``model`` to transitions given as plain tensors: no dataset folder or manifest.
 
@@ -550,12 +594,30 @@ def fit(
     (seeded by ``config.seed``) is held out for early stopping; ``weights``: the pose loss's
     (w_p, w_q). The loss is one-step: a ``config.loss_horizon`` above 1 needs consecutive
     rows, :meth:`StepData.from_transitions` and :func:`fit_steps`.
+
+    ``model`` None: built from ``config`` (:func:`~torchcontact.checkpoint.build_model`, K
+    started at ``config.initial_stiffness``, else 1 N/m), so that the result saves with
+    :func:`~torchcontact.checkpoint.save_model`; a given model saves only when ``config``
+    rebuilds it. ``scene``: the environment whose ``--learned`` takes the saved model (None:
+    a user's robot). The result's ``meta`` (:func:`tensor_meta`) and ``manifest`` (the data
+    sizes, the settings and the validation figures: loss, mean one-step position error [mm]
+    of the fitted model and of holding still) are what :func:`save_model` writes.
     """
     config = FitConfig() if config is None else config
+    if not isinstance(config, FitConfig):
+        raise TypeError(f"config must be a FitConfig, got {type(config).__name__}")
     if not 0 < val_fraction < 1:
         raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction!r}")
     if config.loss_horizon != 1:
         raise ValueError(f"config.loss_horizon must be 1 for plain rows, got {config.loss_horizon}")
+    if model is None:
+        model = ComplementarityFree()  # only its γ and facets enter the meta
+        meta = tensor_meta(model, contacts, system, h, joints, weights, scene)
+        model = build_model(config, meta)
+    elif isinstance(model, ComplementarityFree):
+        meta = tensor_meta(model, contacts, system, h, joints, weights, scene, _start(model))
+    else:
+        raise TypeError(f"model must be a ComplementarityFree or None, got {type(model).__name__}")
     data = StepData.from_tensors(
         q, u, q_next, contacts, system, h, joints, displacement=displacement
     )
@@ -564,4 +626,37 @@ def fit(
     if held >= len(data):
         raise ValueError(f"q must have at least 2 rows to split, got {len(data)}")
     train, val = data.select(order[held:]), data.select(order[:held])
-    return fit_steps(model, train, val, weights, config, progress)
+    result = fit_steps(model, train, val, weights, config, progress)
+    result.meta = meta
+    result.manifest = {
+        "dataset": {"transitions": len(data), "train": len(train), "val": len(val)},
+        "fit": {
+            **dataclasses.asdict(config),
+            "best_epoch": result.best_epoch,
+            "epochs_run": len(result.history),
+            "seconds": round(result.seconds, 3),
+        },
+        "validation": {"val_loss": result.val_loss, **_one_step_figures(result.model, val)},
+    }
+    return result
+
+
+def _start(model: ComplementarityFree) -> float:
+    """The K [N/m] a constant-K model holds (for the meta's initial K); 1 for others: a
+    network's start does not enter its rebuilt architecture."""
+    value = getattr(model.stiffness, "value", None)
+    return float(value) if isinstance(value, (int, float)) and value > 0 else 1.0
+
+
+def _one_step_figures(model: ComplementarityFree, data: StepData) -> dict:
+    """Mean one-step object position error [mm] on ``data`` of ``model`` and of holding
+    still (the pose unchanged), and the model's mean quaternion error ``1 − ⟨q, q*⟩²``."""
+    with torch.no_grad():
+        pose = predict_poses(model, data)[:, 0]
+    position, quaternion = pose_errors(pose, data.target[:, 0])
+    still, _ = pose_errors(data.pose, data.target[:, 0])
+    return {
+        "position_error_mm": 1000 * float(position.mean()),
+        "quaternion_error": float(quaternion.mean()),
+        "hold_still_position_error_mm": 1000 * float(still.mean()),
+    }

@@ -1,6 +1,7 @@
 """Fitting K and D: the precomputed step is the model's, a known K is recovered, checkpoints."""
 
 import dataclasses
+import json
 
 import pytest
 import torch
@@ -11,13 +12,19 @@ from torchcontact.checkpoint import (
     build_model,
     constant_model,
     load_checkpoint,
+    load_model,
     save_checkpoint,
+    save_model,
 )
+from torchcontact.cli import main
+from torchcontact.cli.run import parse_args
+from torchcontact.digests import file_sha256
 from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import collect, load
 from torchcontact.learn.evaluate import one_step_error, rollout_error, sweep_constant
 from torchcontact.learn.fit import StepData, fit, fit_steps, predict_poses, system_terms
 from torchcontact.learn.scenes import make_scene
+from torchcontact.mpc.models import load_learned
 
 
 @pytest.fixture(scope="module")
@@ -172,3 +179,49 @@ def test_one_step_rollout_equals_the_one_step_error(transitions):
     sweep = sweep_constant([0.1, 1.0], transitions, detector, horizon=3, stride=3)
     assert [row["stiffness"] for row in sweep] == [0.1, 1.0]
     assert all(row["windows"] == 16 for row in sweep)  # steps 0, 3, 6, 9 of 4 trajectories
+
+
+def test_fit_on_tensors_saves_loads_and_plans_with_learned(transitions, tmp_path, capsys):
+    """fit(None, ...) builds its model from the config; save_model writes it with a manifest
+    of the fit; load_model and ``run trifinger --learned`` read it; another scene refuses it."""
+    meta = transitions.meta
+    system = make_scene("trifinger", "cube").system
+    rows = (transitions.q, transitions.u, transitions.q_next, transitions.contacts)
+    config = FitConfig(stiffness="per_row", damping="relative", epochs=3, batch_size=16)
+    result = fit(
+        None, *rows, system, meta["h"], meta["joints"], config, progress=False, scene="trifinger"
+    )
+    assert result.config == config and result.meta["scene"] == "trifinger"
+    assert result.meta["slots"] == transitions.contacts.slots and result.meta["nu"] == 9
+    path = save_model(tmp_path / "mine.pt", result)
+    manifest = json.loads(path.with_suffix(".json").read_text())
+    n = len(transitions.q)
+    assert manifest["dataset"] == {
+        "transitions": n,
+        "train": n - round(0.2 * n),
+        "val": round(0.2 * n),
+    }
+    assert manifest["fit"]["stiffness"] == "per_row" and manifest["fit"]["epochs_run"] <= 3
+    assert manifest["sha256"] == file_sha256(path) and manifest["environment"] == "trifinger"
+    assert set(manifest["versions"]) == {"torchcontact", "torch", "mujoco"}
+    validation = manifest["validation"]
+    assert validation["val_loss"] == result.val_loss
+    assert validation["position_error_mm"] >= 0 and validation["hold_still_position_error_mm"] > 0
+    loaded = load_model(path)
+    for a, b in zip(result.model.state_dict().values(), loaded.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert load_learned(str(path), "trifinger").stiffness.__class__.__name__ == "PerRow"
+    assert parse_args(["trifinger", "--learned", str(path)]).learned == str(path.resolve())
+    argv = ["run", "fingertips", "--trials", "1", "--learned", str(path), "--no-progress"]
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert info.value.code == 2 and len(err.splitlines()) == 1, err
+    assert "learned in the 'trifinger' environment, not 'fingertips'" in err
+    mismatched = FitConfig(stiffness="constant", damping="relative", epochs=1)
+    given = fit(build_model(FitConfig(), meta), *rows, system, 0.1, meta["joints"], mismatched,
+                progress=False)  # fmt: skip
+    with pytest.raises(ValueError, match="^model is not the architecture config and meta"):
+        save_model(tmp_path / "other.pt", given)
+    with pytest.raises(TypeError, match="^model must be a ComplementarityFree or None"):
+        fit("per_row", *rows, system, 0.1, meta["joints"], config)
