@@ -24,3 +24,14 @@ def test_notebook_executes(path, tmp_path):
 
 def test_quickstart_is_present():
     assert any(p.name == "quickstart.ipynb" for p in NOTEBOOKS)
+
+
+def test_own_data_is_stored_executed_with_its_figures():
+    """The own-data notebook is stored with the outputs a reader sees: its one-step table and
+    the resting drift it explains."""
+    notebook = nbformat.read(Path(__file__).parents[1] / "notebooks" / "own_data.ipynb", 4)
+    text = "".join(
+        o.get("text", "") for c in notebook.cells if c.cell_type == "code" for o in c.outputs
+    )
+    for expected in ("hold still", "Anitescu QP", "learned K(q), D(q)", "resting drift per step"):
+        assert expected in text
