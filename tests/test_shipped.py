@@ -1,10 +1,13 @@
 """The learned models that ship with the package: they load, match their manifests, and are
 what ``torchcontact run ENV`` plans with when no flag says otherwise."""
 
+from pathlib import Path
+
 import pytest
 import torch
 
-from torchcontact.checkpoint import load_checkpoint
+from torchcontact.checkpoint import FitConfig, build_model, load_checkpoint, save_checkpoint
+from torchcontact.cli import main
 from torchcontact.cli.run import parse_args
 from torchcontact.digests import file_sha256
 from torchcontact.environments import environment
@@ -65,3 +68,24 @@ def test_an_env_without_a_shipped_model_refuses_the_flag(capsys):
     with pytest.raises(SystemExit):
         parse_args([unshipped[0], "--stiffness", "shipped"])
     assert "ships no model" in capsys.readouterr().err
+
+
+GRIPPER = Path(__file__).parents[1] / "examples" / "two_finger_gripper.xml"
+CUSTOM = ["custom", "--robot", str(GRIPPER), "--tips", "left_tip,right_tip", "--object", "cube"]
+
+
+def test_a_users_robot_takes_its_own_checkpoint_and_refuses_the_shipped_one(tmp_path, capsys):
+    """A checkpoint saved for a user's robot (meta scene None, its joints) is what
+    ``run custom --learned`` takes; the TriFinger's is refused in one line naming both."""
+    config = FitConfig(stiffness="constant", damping="relative")
+    joints = ["free", "slide", "slide", "slide", "slide"]
+    meta = {"scene": None, "gamma": 100.0, "facets": 4, "slots": 8, "nq": 11, "nv": 10, "nu": 4,
+            "joints": joints, "paper_stiffness": 1.0}  # fmt: skip
+    path = save_checkpoint(tmp_path / "gripper.pt", build_model(config, meta), config, meta)
+    assert parse_args([*CUSTOM, "--learned", str(path)]).learned == str(path.resolve())
+    with pytest.raises(SystemExit) as info:
+        main(["run", *CUSTOM, "--learned", str(shipped_path("trifinger")), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert info.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert "learned in the 'trifinger' environment on states of joints free + 9 hinge" in err
+    assert "not for this robot (joints free + 4 slide)" in err
