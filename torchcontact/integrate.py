@@ -85,8 +85,14 @@ class JointLayout:
 
     @classmethod
     def manipulation(cls, robot_joints: Sequence[str]) -> JointLayout:
-        """The object's free joint, then ``robot_joints``: blocks ``"object"`` and ``"robot"``."""
+        """The object's free joint, then ``robot_joints`` (slide or hinge: a robot's q and v
+        coincide): blocks ``"object"`` and ``"robot"``."""
+        if isinstance(robot_joints, str):
+            raise TypeError(f"robot_joints must be a sequence of joint types, got {robot_joints!r}")
         robot_joints = list(robot_joints)
+        others = [j for j in robot_joints if j not in ("slide", "hinge")]
+        if others:
+            raise ValueError(f"robot_joints must be 'slide' or 'hinge' joints, got {others}")
         return cls(["free", *robot_joints], blocks={"object": 1, "robot": len(robot_joints)})
 
     def _block_name(self, name: str) -> str:
@@ -171,6 +177,8 @@ def _check_blocks(blocks: Mapping[str, int] | None, n_joints: int) -> dict[str, 
 def _check_integrate_inputs(q, v, h: Scalar, layout: JointLayout) -> None:
     """Raise ``ValueError`` (``TypeError`` for non-tensors) naming the bad argument of
     :func:`integrate`."""
+    if not isinstance(layout, JointLayout):
+        raise TypeError(f"layout must be a JointLayout, got {type(layout).__name__}")
     check_tensor("q", q)
     check_tensor("v", v)
     check_shape("q", q, f"(..., {layout.nq})", q.dim() >= 1 and q.shape[-1] == layout.nq)

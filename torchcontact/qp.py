@@ -9,6 +9,7 @@ a time on the CPU in float64 with tight tolerances; not differentiable (yet).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import osqp
@@ -100,6 +101,10 @@ def qp_solve(
     hs = h_t.expand(batch).reshape(-1).numpy()
     v = np.zeros((bs.shape[0], nv))
     beta = np.zeros((bs.shape[0], m))
+    if settings is not None and not isinstance(settings, Mapping):
+        raise TypeError(
+            f"settings must be a mapping of OSQP settings, got {type(settings).__name__}"
+        )
     options = {**OSQP_SETTINGS, **(settings or {})}
     for i in range(bs.shape[0]):
         rows = keep[i]

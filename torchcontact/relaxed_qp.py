@@ -56,7 +56,7 @@ from torchcontact.functional import (
     is_dense_metric,
     metric_solver,
 )
-from torchcontact.validation import check_shape
+from torchcontact.validation import check_number, check_positive, check_shape
 
 PAPER_RELAXATION = 5e-4
 """The paper's κ, in its code's scaling of the same QP: ``min ½vᵀQv − vᵀb/h`` s.t.
@@ -130,12 +130,15 @@ def _check_iterations(iterations: int | None, name: str = "iterations", optional
         raise ValueError(f"{name} must be {allowed}, got {iterations!r}")
 
 
-def _checked_rows(Q, b, jac, phi, h, active, relaxation, iterations, max_iter):
+def _checked_rows(Q, b, jac, phi, h, active, relaxation, iterations, max_iter, tol):
     """Check the inputs; return ``jac, phi`` with the inactive rows dropped and κ."""
     _check_step_inputs(Q, b, jac, phi, h, 1.0, None, None)
     kappa = _check_relaxation(relaxation)
     _check_iterations(iterations)
     _check_iterations(max_iter, "max_iter", optional=False)
+    if tol is not None:
+        check_number("tol", tol)
+        check_positive("tol", tol)
     if active is None:
         return jac, phi, kappa
     m = phi.shape[-1]
@@ -295,7 +298,9 @@ def relaxed_qp_solve(
     ``torch.compile`` graph (seconds to compile once per shape and dtype; worth it in a loop).
     Returns a detached :class:`RelaxedQPSolution` to hand to :func:`relaxed_qp_velocity`.
     """
-    jac, phi, kappa = _checked_rows(Q, b, jac, phi, h, active, relaxation, iterations, max_iter)
+    jac, phi, kappa = _checked_rows(
+        Q, b, jac, phi, h, active, relaxation, iterations, max_iter, tol
+    )
     tol = default_tolerance(b.dtype) if tol is None else tol
     with torch.no_grad():
         inputs = [_detach(x) for x in (Q, b, jac, phi, h)]
@@ -344,7 +349,9 @@ def relaxed_qp_velocity(
         v: ``(..., nv)`` next velocity ``Q⁻¹b/h + Q⁻¹J̃ᵀβ/h²``; beta: ``(..., m)`` row impulses
         β > 0 (0 on dropped rows), with slack ``J̃v + φ̃/h = κ/β > 0``.
     """
-    jac, phi, kappa = _checked_rows(Q, b, jac, phi, h, active, relaxation, iterations, max_iter)
+    jac, phi, kappa = _checked_rows(
+        Q, b, jac, phi, h, active, relaxation, iterations, max_iter, tol
+    )
     if jac.shape[-2] == 0:  # no rows: the unconstrained minimizer
         v = metric_solver(Q, b)(b) / _batch_scalar(h)
         return v, phi.new_zeros(*v.shape[:-1], 0)

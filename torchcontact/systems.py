@@ -7,14 +7,25 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from torchcontact.validation import check_finite, check_positive, check_shape, check_tensor
+from torchcontact.validation import (
+    check_count,
+    check_finite,
+    check_number,
+    check_positive,
+    check_same_kind,
+    check_shape,
+    check_tensor,
+)
 
 GRAVITY = 9.8
 """Standard gravity g [m/s²], the paper's value: an object of mass m [kg] weighs m·g [N]."""
 
 
 def _vector(name: str, value, size: int | None = None) -> torch.Tensor:
-    x = torch.as_tensor(value)
+    try:
+        x = torch.as_tensor(value)
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise TypeError(f"{name} must be a number or a tensor, got {value!r}") from error
     if not x.is_floating_point():
         x = x.to(torch.get_default_dtype())
     if x.dim() == 0 and size is not None:
@@ -71,7 +82,9 @@ class QuasiDynamic(nn.Module):
         metric = _vector("object_metric", object_metric)
         check_positive("object_metric", metric)
         n_o = metric.shape[0]
-        if n_robot is None and torch.as_tensor(robot_stiffness).dim() == 0:
+        if n_robot is not None:
+            check_count("n_robot", n_robot)
+        elif torch.as_tensor(robot_stiffness).dim() == 0:
             raise ValueError("n_robot is required when robot_stiffness is a float")
         stiffness = _vector("robot_stiffness", robot_stiffness, n_robot)
         check_positive("robot_stiffness", stiffness)
@@ -131,11 +144,19 @@ class QuasiDynamic(nn.Module):
         robot_force: torch.Tensor | None = None,
         object_displacement: torch.Tensor | None = None,
     ):
+        n_r, n_o = self.n_robot, self.n_object
         check_tensor("u", u)
-        check_shape("u", u, f"(..., {self.n_robot})", u.dim() >= 1 and u.shape[-1] == self.n_robot)
+        check_shape("u", u, f"(..., {n_r})", u.dim() >= 1 and u.shape[-1] == n_r)
+        check_same_kind("robot_stiffness", {"robot_stiffness": self.robot_stiffness, "u": u}, False)
         check_finite("u", u)
-        if robot_force is not None:
-            check_finite("robot_force", robot_force)
+        for name, x, n in (
+            ("robot_force", robot_force, n_r),
+            ("object_displacement", object_displacement, n_o),
+        ):
+            if x is not None:
+                check_tensor(name, x)
+                check_shape(name, x, f"(..., {n})", x.dim() >= 1 and x.shape[-1] == n)
+                check_finite(name, x)
         if self.command_gain is not None:
             u = self.command_gain * u
         robot = self.robot_stiffness * u
@@ -207,6 +228,7 @@ def full_dynamic(
         "mass_matrix", mass_matrix, f"(..., {nv}, {nv})", mass_matrix.shape[-2:] == (nv, nv)
     )
     check_shape("force", force, f"(..., {nv})", force.shape[-1:] == (nv,))
+    check_number("h", h)
     check_positive("h", h)
     b = (mass_matrix @ velocity.unsqueeze(-1)).squeeze(-1) / h + force
     return mass_matrix / (h * h), b

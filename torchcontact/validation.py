@@ -134,6 +134,12 @@ def check_count(name: str, n: object, minimum: int = 1) -> int:
     return n
 
 
+def check_number(name: str, x: object) -> None:
+    """Raise ``TypeError`` naming ``name`` unless ``x`` is a number (not a bool) or a tensor."""
+    if isinstance(x, bool) or not isinstance(x, (int, float, torch.Tensor)):
+        raise TypeError(f"{name} must be a number or a torch.Tensor, got {x!r}")
+
+
 def check_tensor(name: str, x: object) -> torch.Tensor:
     """Return ``x`` if it is a floating tensor, else raise ``TypeError`` naming ``name``."""
     if not isinstance(x, torch.Tensor):
