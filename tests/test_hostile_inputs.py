@@ -36,6 +36,8 @@ from torchcontact.digests import content_sha256, file_sha256, loaded_files
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.functional import cf_velocity
+from torchcontact.generated import generate
+from torchcontact.integrate import JointLayout, integrate
 from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.mpc.trials import (
     MAX_STIFFNESS,
@@ -49,8 +51,9 @@ from torchcontact.mpc.trials import (
     trial_inputs,
 )
 from torchcontact.qp import qp_solve
+from torchcontact.relaxed_qp import relaxed_qp_solve
 from torchcontact.results import locked_folder, writable_file, write_csv
-from torchcontact.shapes import load_object
+from torchcontact.shapes import load_object, make_object
 from torchcontact.shipped import SHIPPED, check_shipped, resolve_learned
 from torchcontact.stiffness import ContactNetwork, StateNetwork
 from torchcontact.systems import QuasiDynamic
@@ -704,3 +707,41 @@ def test_a_step_names_contacts_that_are_not_contacts_and_a_b_its_jac_does_not_fi
         cf_velocity(torch.ones(3), torch.zeros(3), torch.randn(8, 3), torch.rand(8), 0.1, "3")
     with pytest.raises(ValueError, match=r"nv that of b \(2,\), got \(8, 3\)"):
         cf_velocity(torch.ones(2), torch.zeros(2), torch.randn(8, 3), torch.rand(8), 0.1, 3.0)
+
+
+# --- the audit's remaining core findings ----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (lambda: QuasiDynamic("x", 1.0, [0.0] * 6, n_robot=3), TypeError, "object_metric must"),
+        (lambda: QuasiDynamic([1.0] * 6, 1.0, [0.0] * 6, n_robot=0), ValueError,
+         "n_robot must be an integer >= 1, got 0"),
+        (lambda: QuasiDynamic([1.0] * 6, 1.0, [0.0] * 6, n_robot=3)(torch.zeros(3),
+         object_displacement=torch.full((6,), math.nan)), ValueError,
+         "object_displacement must be finite"),
+        (lambda: QuasiDynamic([1.0] * 6, 1.0, [0.0] * 6, n_robot=3)(torch.zeros(3),
+         robot_force=torch.zeros(4)), ValueError, "robot_force must have shape (..., 3)"),
+        (lambda: qp_solve(torch.ones(3), torch.zeros(3), torch.randn(4, 3), torch.rand(4), 0.1,
+         settings="x"), TypeError, "settings must be a mapping of OSQP settings, got str"),
+        (lambda: relaxed_qp_solve(torch.ones(3), torch.zeros(3), torch.randn(4, 3),
+         torch.rand(4), 0.1, tol=-1.0), ValueError, "tol must be positive"),
+        (lambda: integrate(torch.zeros(7), torch.zeros(6), 0.1, "x"), TypeError,
+         "layout must be a JointLayout, got str"),
+        (lambda: JointLayout.manipulation(["ball"]), ValueError,
+         "robot_joints must be 'slide' or 'hinge' joints, got ['ball']"),
+        (lambda: make_object("cube", size=(5.0,) * 3), ValueError, "size must be at most 1 m"),
+        (lambda: generate(1, extent=5.0), ValueError, "extent (or scale) must make the object"),
+        (lambda: load_object(3), TypeError, "path must be a mesh file path, got int"),
+    ],
+)  # fmt: skip
+def test_the_audits_remaining_core_findings_are_named(call, error, message):
+    with pytest.raises(error, match=re.escape(message)):
+        call()
+
+
+def test_load_object_names_a_bad_name(tmp_path):
+    trimesh.creation.box([0.05] * 3).export(tmp_path / "cube.stl")
+    with pytest.raises(TypeError, match="name must be a non-empty string or None, got 3"):
+        load_object(tmp_path / "cube.stl", name=3)

@@ -27,7 +27,14 @@ import trimesh
 from trimesh.transformations import random_rotation_matrix
 
 from torchcontact.resting import rest_on_stable_face
-from torchcontact.shapes import COLLISIONS, DEFAULT_MASS, ObjectMesh, assemble, convex
+from torchcontact.shapes import (
+    COLLISIONS,
+    DEFAULT_MASS,
+    MAX_MESH_EXTENT,
+    ObjectMesh,
+    assemble,
+    convex,
+)
 
 GENERATOR_VERSION = 1
 """Version of the seeds' random stream, part of each: a change of what a seed draws bumps it. A
@@ -139,6 +146,11 @@ def generate(
         largest = _positive("extent", extent)
     elif scale is not None:
         largest *= _positive("scale", scale)
+    if largest > MAX_MESH_EXTENT:
+        raise ValueError(
+            f"extent (or scale) must make the object at most {MAX_MESH_EXTENT:g} m across, "
+            f"got {largest:g} m"
+        )
     obj = assemble(name(seed), rested.parts, _stretch(rested, sides) * largest, mass)
     hull = collision != "parts" and len(obj.parts) > 1
     return dataclasses.replace(obj, collide_hull=True) if hull else obj

@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -207,6 +208,8 @@ def make_object(
         raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
     listed = OBJECT_SIZES[name]
     target = _positive_vector("size", listed if size is None else size, 3)
+    if float(target.max()) > MAX_MESH_EXTENT:
+        raise ValueError(f"size must be at most {MAX_MESH_EXTENT:g} m per side, got {size!r}")
     origin = OBJECT_ORIGIN_HEIGHTS.get(name, listed[2] / 2) * target[2] / listed[2]
     obj = assemble(
         name, _SHAPES[name](), target, _positive_scalar("mass", mass), origin_height=origin
@@ -252,6 +255,10 @@ def load_object(
     Raises ``ValueError`` naming the argument for a missing or empty file, a bad size, scale
     or mass, and for an object larger than :data:`MAX_MESH_EXTENT` (most likely millimetres).
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"path must be a mesh file path, got {type(path).__name__}")
+    if name is not None and (not isinstance(name, str) or not name):
+        raise TypeError(f"name must be a non-empty string or None, got {name!r}")
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"path must be an existing mesh file, got {str(path)!r}")
