@@ -745,3 +745,14 @@ def test_load_object_names_a_bad_name(tmp_path):
     trimesh.creation.box([0.05] * 3).export(tmp_path / "cube.stl")
     with pytest.raises(TypeError, match="name must be a non-empty string or None, got 3"):
         load_object(tmp_path / "cube.stl", name=3)
+
+
+def test_a_phi_of_another_shape_than_jac_normal_names_both():
+    with pytest.raises(ValueError, match=r"^phi \(\.\.\., nc\) and jac_normal .* got phi \(3,\)"):
+        Contacts(**{**_C, "phi": torch.rand(3)})
+
+
+@pytest.mark.parametrize("obj", ["teapot2", "", 3, None])
+def test_fingertips_names_an_object_it_does_not_have(obj):
+    with pytest.raises(ValueError, match=r"^obj must be one of fingertips' objects"):
+        environment("fingertips").make_plant(obj)

@@ -91,12 +91,11 @@ class Contacts:
         nc, nv = self.jac_normal.shape[-2:] if self.jac_normal.dim() >= 2 else (-1, -1)
         batch = self.phi.shape[:-1]
         check_shape("phi", self.phi, "(..., nc)", self.phi.dim() >= 1)
-        check_shape(
-            "jac_normal",
-            self.jac_normal,
-            f"{(*batch, self.phi.shape[-1])} + (nv,)",
-            self.jac_normal.shape[:-1] == self.phi.shape,
-        )
+        if self.jac_normal.shape[:-1] != self.phi.shape:
+            raise ValueError(
+                f"phi (..., nc) and jac_normal (..., nc, nv) must agree on (..., nc), got phi "
+                f"{tuple(self.phi.shape)} and jac_normal {tuple(self.jac_normal.shape)}"
+            )
         check_shape(
             "jac_tangent",
             self.jac_tangent,

@@ -59,6 +59,11 @@ class FingertipsEnvironment(Environment):
                 "options must be empty for fingertips: its objects are the paper's three "
                 "scenes, each with its own per-object model settings"
             )
+        if not isinstance(obj, str) or obj not in tasks.OBJECT_SETTINGS:
+            raise ValueError(
+                f"obj must be one of fingertips' objects {sorted(tasks.OBJECT_SETTINGS)}, "
+                f"got {obj!r}"
+            )
         settings = tasks.OBJECT_SETTINGS[obj]
         return FingertipsEnv(
             obj,
