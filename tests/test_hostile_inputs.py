@@ -52,7 +52,7 @@ from torchcontact.mpc.trials import (
 )
 from torchcontact.qp import qp_solve
 from torchcontact.relaxed_qp import relaxed_qp_solve
-from torchcontact.results import locked_folder, writable_file, write_csv
+from torchcontact.results import locked_folder, read_json, writable_file, write_csv
 from torchcontact.shapes import load_object, make_object
 from torchcontact.shipped import SHIPPED, check_shipped, resolve_learned
 from torchcontact.stiffness import ContactNetwork, StateNetwork
@@ -756,3 +756,11 @@ def test_a_phi_of_another_shape_than_jac_normal_names_both():
 def test_fingertips_names_an_object_it_does_not_have(obj):
     with pytest.raises(ValueError, match=r"^obj must be one of fingertips' objects"):
         environment("fingertips").make_plant(obj)
+
+
+def test_a_missing_file_and_a_file_that_is_not_json_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"^path must be an existing file, got '.*nowhere'"):
+        content_sha256(tmp_path / "nowhere")
+    (tmp_path / "text.json").write_text("not json\n")
+    with pytest.raises(json.JSONDecodeError, match=r"^.*text\.json must hold JSON: Expecting"):
+        read_json(tmp_path / "text.json")

@@ -93,6 +93,8 @@ def content_sha256(path: str | Path, hashes: dict[str, str] | None = None) -> st
         return hashes[key]
 
     path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path must be an existing file, got {str(path)!r}")
     others = loaded_files(path)
     if not others:
         return digest(path)

@@ -200,7 +200,11 @@ def write_json(path: str | Path, data: Any) -> Path:
 def read_json(path: str | Path) -> Any:
     """Read a JSON file written by :func:`write_json`."""
     with open(path) as f:
-        return json.load(f)
+        try:
+            return json.load(f)
+        except json.JSONDecodeError as error:
+            message = f"{path} must hold JSON: {error.msg}"  # still a JSONDecodeError
+            raise json.JSONDecodeError(message, error.doc, error.pos) from None
 
 
 def write_csv(path: str | Path, rows: Iterable[Mapping[str, Any]]) -> Path:
