@@ -764,3 +764,9 @@ def test_a_missing_file_and_a_file_that_is_not_json_are_named(tmp_path):
     (tmp_path / "text.json").write_text("not json\n")
     with pytest.raises(json.JSONDecodeError, match=r"^.*text\.json must hold JSON: Expecting"):
         read_json(tmp_path / "text.json")
+
+
+@pytest.mark.parametrize("dtype", ["float16", torch.int64, 3])
+def test_a_plants_contacts_name_a_dtype_that_is_not_one(mpc_and_plant, dtype):
+    with pytest.raises(TypeError, match=r"^dtype must be a floating torch.dtype or None"):
+        mpc_and_plant[1].contacts(dtype)

@@ -84,6 +84,8 @@ class Plant:
         when touching, up to the margin when not). More contacts than slots follow the
         detector's ``overflow`` policy.
         """
+        if dtype is not None and not (isinstance(dtype, torch.dtype) and dtype.is_floating_point):
+            raise TypeError(f"dtype must be a floating torch.dtype or None, got {dtype!r}")
         contacts = self.detector(self.data.qpos)
         return contacts if dtype is None else contacts.to(dtype)
 
