@@ -770,3 +770,21 @@ def test_a_missing_file_and_a_file_that_is_not_json_are_named(tmp_path):
 def test_a_plants_contacts_name_a_dtype_that_is_not_one(mpc_and_plant, dtype):
     with pytest.raises(TypeError, match=r"^dtype must be a floating torch.dtype or None"):
         mpc_and_plant[1].contacts(dtype)
+
+
+@pytest.mark.parametrize(
+    "field, value, error, message",
+    [
+        ("edge", "x", TypeError, "edge must be a number, got 'x'"),
+        ("h", "x", TypeError, "h must be a number, got 'x'"),
+        ("facets", -1, ValueError, "facets must be a positive integer, got -1"),
+        ("facets", "x", ValueError, "facets must be a positive integer, got 'x'"),
+        ("gamma", -1.0, ValueError, "gamma must be a positive finite number or None"),
+        ("gamma", math.nan, ValueError, "gamma must be a positive finite number or None"),
+    ],
+)
+def test_box_pushing_config_names_a_bad_field(field, value, error, message):
+    from torchcontact.sim.box_pushing import BoxPushingConfig
+
+    with pytest.raises(error, match=f"^{re.escape(message)}"):
+        BoxPushingConfig(**{field: value})

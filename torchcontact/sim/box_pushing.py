@@ -90,7 +90,16 @@ class BoxPushingConfig:
     warmup: int = 5
 
     def __post_init__(self) -> None:
-        for name in ("cubes", "steps"):
+        numbers = ("h", "epsilon", "robot_stiffness", "contact_stiffness", "push", "edge")
+        for name in (*numbers, "mass", "gap", "mu", "margin"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool):
+                raise TypeError(f"{name} must be a number, got {value!r}")
+        if self.gamma is not None and not (
+            isinstance(self.gamma, (int, float)) and math.isfinite(self.gamma) and self.gamma > 0
+        ):
+            raise ValueError(f"gamma must be a positive finite number or None, got {self.gamma!r}")
+        for name in ("facets", "cubes", "steps"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
