@@ -701,7 +701,8 @@ def record_problem(record) -> str | None:
     for key in FINITE_KEYS:
         if not all(math.isfinite(x) for x in np.ravel(record[key])):
             return f"{key} is not finite"
-    for key in (*ERROR_KEYS, "detect_ms", "solve_ms", "sim_ms", "iterations"):
+    counts = ("contact_slots", "contacts_found_mean", "contacts_found_max")
+    for key in (*ERROR_KEYS, "detect_ms", "solve_ms", "sim_ms", "iterations", *counts):
         if not all(math.isfinite(x) and x >= 0 for x in np.ravel(record[key])):
             return f"{key} must be finite and >= 0"
     if not 1 <= record["steps"] <= stored["max_steps"]:

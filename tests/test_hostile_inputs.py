@@ -645,6 +645,9 @@ IMPOSSIBLE = [
     ({"solve_ms": [math.nan]}, "solve_ms must be finite and >= 0"),
     ({"detect_ms": [-2.0]}, "detect_ms must be finite and >= 0"),
     ({"iterations": [-1]}, "iterations must be finite and >= 0"),
+    ({"contact_slots": -1}, "contact_slots must be finite and >= 0"),
+    ({"contacts_found_max": -1}, "contacts_found_max must be finite and >= 0"),
+    ({"contacts_found_mean": math.nan}, "contacts_found_mean must be finite and >= 0"),
 ]
 
 
