@@ -43,7 +43,7 @@ from torchcontact.mpc.sources import (
 from torchcontact.sim.geometry import scene_geometry
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import QuasiDynamic
-from torchcontact.validation import check_finite, check_shape, validate_args
+from torchcontact.validation import check_finite, check_shape, checking_values, validate_args
 
 Fingertips = Callable[[torch.Tensor], torch.Tensor]
 """Forward kinematics ``q (..., nq) ↦ fingertip positions (..., n_tips, 3)`` [m]."""
@@ -500,6 +500,10 @@ class ContactImplicitMPC:
         check_shape("target_quat", target_quat, "(4,)", target_quat.shape == (4,))
         check_finite("target_p", target_p)
         check_finite("target_quat", target_quat)
+        if not isinstance(contacts, Contacts):
+            raise TypeError(f"contacts must be Contacts, got {type(contacts).__name__}")
+        if checking_values(target_quat) and not bool(target_quat.detach().norm() > 0):
+            raise ValueError("target_quat must be a non-zero quaternion, got a zero quaternion")
         start = time.perf_counter()
         # inputs checked above (contacts when built): what plan derives from them is not
         # checked again (each value check is a host sync inside a solve of a few ms)

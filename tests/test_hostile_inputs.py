@@ -791,3 +791,12 @@ def test_box_pushing_config_names_a_bad_field(field, value, error, message):
 
     with pytest.raises(error, match=f"^{re.escape(message)}"):
         BoxPushingConfig(**{field: value})
+
+
+def test_a_plan_names_contacts_that_are_not_contacts_and_a_zero_target_quat(mpc_and_plant):
+    mpc, plant = mpc_and_plant
+    q, p = torch.as_tensor(plant.state()), torch.zeros(3)
+    with pytest.raises(TypeError, match=r"^contacts must be Contacts, got str"):
+        mpc.plan(q, "x", p, torch.tensor([1.0, 0, 0, 0]))
+    with pytest.raises(ValueError, match=r"^target_quat must be a non-zero quaternion"):
+        mpc.plan(q, plant.contacts(mpc.dtype), p, torch.zeros(4))
