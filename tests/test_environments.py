@@ -82,6 +82,7 @@ def _gripper(max_steps: int = 150):
     task = PoseTask(
         target_x=(0.0, 0.0),
         target_y=(0.01, 0.015),
+        lift=(0.0, 0.0),
         criterion=SuccessCriterion(
             position_tolerance=0.004, quaternion_tolerance=0.04, hold_steps=5, max_steps=max_steps
         ),

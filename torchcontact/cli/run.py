@@ -420,11 +420,12 @@ def _about(args: argparse.Namespace) -> str:
 
 def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
     """One line per object of the run (up to ``at_most``; a count beyond): the size, mass,
-    friction and collision shape its plant uses."""
+    friction and collision shape its plant uses, and what the environment derived for it."""
     env, objects = args.env_description, list(dict.fromkeys(obj for _, obj in args.pairs))
     lines = []
     for obj in objects[:at_most]:
-        facts = object_facts(env.make_plant(obj, args.collision, args.object_options))
+        plant = env.make_plant(obj, args.collision, args.object_options)
+        facts = object_facts(plant)
         extent = " × ".join(f"{100 * x:.1f}" for x in facts["object_extent"])
         lines.append(
             f"object {Path(obj).name}: {extent} cm, {1e3 * facts['object_mass_kg']:g} g, "
@@ -432,6 +433,7 @@ def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
         )
         if is_mesh_file(obj):
             lines[-1] += f"; {describe_pose(obj, args.object_options, args.collision)}"
+        lines += env.describe(plant)
     if len(objects) > at_most:
         lines.append(f"... and {len(objects) - at_most} more objects (each record stores its own)")
     return lines

@@ -147,6 +147,10 @@ class Environment:
         the object is held (both: hands only; None: the environment's default)."""
         raise NotImplementedError
 
+    def describe(self, plant: Plant) -> list[str]:
+        """Lines for a run's header on what the environment derived for ``plant`` (none)."""
+        return []
+
     def sample(self, plant: Plant, task: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """Initial and target object poses ``(7,), (7,)`` of trial ``seed`` of ``task``."""
         raise NotImplementedError

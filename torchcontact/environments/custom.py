@@ -13,13 +13,15 @@ a,b --object cube`` or, in Python::
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from torchcontact.environments import tasks
+from torchcontact.environments import tasks, workspace
 from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.hands import TRIFINGER_PRESETS, HandEnvironment, HandModel
 from torchcontact.sim.hands import Hand, HandEnv
@@ -28,48 +30,87 @@ from torchcontact.sim.robot import Robot
 
 @dataclass(frozen=True)
 class PoseTask:
-    """Move the object from a resting pose to a target pose near the support's centre.
+    """Move the object from a resting pose to a target pose within the robot's reach.
 
-    Trial ``seed`` draws from ``np.random.default_rng(seed)``: the initial x, y ~ centre +
+    Trial ``seed`` draws from ``np.random.default_rng(seed)``: the initial x, y ~ placement +
     U[−initial_xy, initial_xy]² [m] and yaw ~ U[−yaw, yaw] [rad], resting; then the target's
-    offset from the centre, x ~ U[``target_x``], y ~ U[``target_y``] [m], and its yaw ~
-    U[−yaw, yaw], raised above its resting height by U[``lift``] [m].
+    offset from the placement, x ~ U[``target_x``], y ~ U[``target_y``] [m], and its yaw ~
+    U[−yaw, yaw], raised above its resting height by U[``lift``] [m]. Each of ``placement``,
+    ``target_x``, ``target_y`` and ``lift`` left None is derived from the robot's reach around
+    the plant's object (:func:`~torchcontact.environments.workspace.reach`): the support's
+    centre where a tip can touch the object there, and only as far as the tips can push or
+    lift it.
     """
 
     name: str = "reposition"
     initial_xy: float = 0.0
-    target_x: tuple[float, float] = (-0.03, 0.03)
-    target_y: tuple[float, float] = (-0.03, 0.03)
-    lift: tuple[float, float] = (0.0, 0.0)
+    target_x: tuple[float, float] | None = None
+    target_y: tuple[float, float] | None = None
+    lift: tuple[float, float] | None = None
     yaw: float = 0.0
+    placement: tuple[float, float] | None = None
     criterion: tasks.SuccessCriterion = tasks.TRIFINGER_SUCCESS
 
     def __post_init__(self):
         for name in ("initial_xy", "yaw"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
+            if not (_number(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
-        for name in ("target_x", "target_y", "lift"):
-            low, high = getattr(self, name)
-            if not (math.isfinite(low) and math.isfinite(high) and low <= high):
-                raise ValueError(f"{name} must be finite (low, high) with low <= high")
-        if self.lift[0] < 0:
+        for name in ("target_x", "target_y", "lift", "placement"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if not (isinstance(value, tuple) and len(value) == 2 and all(map(_number, value))):
+                raise ValueError(f"{name} must be None or two finite numbers, got {value!r}")
+            if name != "placement" and value[0] > value[1]:
+                raise ValueError(f"{name} must be (low, high) with low <= high, got {value}")
+        if self.lift is not None and self.lift[0] < 0:
             raise ValueError(f"lift must not be negative, got {self.lift}")
+
+    def region(self, plant: HandEnv) -> workspace.Reach:
+        """Placement and target region on ``plant``: the given ones, the rest derived."""
+        derived = _reach(plant)
+        given = {
+            name: getattr(self, name)
+            for name in ("placement", "target_x", "target_y", "lift")
+            if getattr(self, name) is not None
+        }
+        return dataclasses.replace(derived, **given)
 
     def __call__(self, plant: HandEnv, task: str, seed: int):
         """Initial and target poses ``(7,), (7,)`` of trial ``seed`` on ``plant``."""
+        region = self.region(plant)
         rng = np.random.default_rng(seed)
-        centre = plant.support_centre
+        centre = np.asarray(region.placement)
         initial = plant.resting_pose(
             centre + rng.uniform(-self.initial_xy, self.initial_xy, 2),
             tasks.quat_from_yaw_pitch_roll(rng.uniform(-self.yaw, self.yaw)),
         )
-        offset = rng.uniform(*zip(self.target_x, self.target_y, strict=True))
+        offset = rng.uniform(*zip(region.target_x, region.target_y, strict=True))
         target = plant.resting_pose(
             centre + offset, tasks.quat_from_yaw_pitch_roll(rng.uniform(-self.yaw, self.yaw))
         )
-        target[2] += rng.uniform(*self.lift)
+        target[2] += rng.uniform(*region.lift)
         return initial, target
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _reach(plant: HandEnv) -> workspace.Reach:
+    """The derived :class:`~torchcontact.environments.workspace.Reach` of ``plant``'s robot
+    around its object (the workspace sampled once per robot)."""
+    hand = plant.hand
+    points, start = _workspace(str(hand.mjcf), hand.tips, hand.initial_joints)
+    extent = np.asarray(plant.object.size, dtype=float)
+    return workspace.reach(points, start, extent, plant.support_height, plant.support_centre)
+
+
+@functools.lru_cache(maxsize=8)
+def _workspace(mjcf: str, tips: tuple[str, ...], initial: tuple[float, ...]):
+    ranges = workspace.robot_defaults(mjcf).joint_ranges
+    return workspace.tip_workspace(mjcf, tips, ranges, initial)
 
 
 def from_mjcf(
@@ -80,7 +121,7 @@ def from_mjcf(
     task: PoseTask | None = None,
     cost: Cost | None = None,
     initial_joints: tuple[float, ...] | None = None,
-    control_bound: float = 0.005,
+    control_bound: float | None = None,
     robot_stiffness: float = 100.0,
     stiffness: float = 0.5,
     frame_skip: int = 50,
@@ -96,10 +137,14 @@ def from_mjcf(
         tips: fingertip site names; None: the file's sites named ``*tip``.
         name: the environment's name (its records' prefix).
         task: the sampler and success criterion (default :class:`PoseTask`'s).
-        cost: the MPC cost (default the paper's manipulation cost with TriFinger's weights and
-            its contact floor, :attr:`HandModel.contact_floor`).
-        initial_joints: joints at the start of every trial; None: the file's ``qpos0``.
-        control_bound: |u| per joint and step [rad or m].
+        cost: the MPC cost (default the paper's manipulation cost with TriFinger's contact
+            and grasp weights, the control weight :data:`CONTROL_SLOPE` / ``control_bound``,
+            and its contact floor, :attr:`HandModel.contact_floor`).
+        initial_joints: joints at the start of every trial; None: the file's first keyframe,
+            or its joints' reference positions where it has none.
+        control_bound: |u| per joint and step [rad or m]; None: the narrowest range the
+            position actuators command, over
+            :data:`~torchcontact.environments.workspace.STEPS_ACROSS` steps.
         robot_stiffness: Kᵣ of the quasi-dynamic robot.
         stiffness: K of the paper's contact model.
         frame_skip: MuJoCo substeps (2 ms) per control step.
@@ -111,8 +156,19 @@ def from_mjcf(
     description = Robot.from_mjcf(path, tips)
     if any(actuator.kind != "position" for actuator in description.actuators):
         raise ValueError(f"robot must drive every joint with a position actuator: {path.name}")
+    derived = workspace.robot_defaults(path)
     if initial_joints is None:
-        initial_joints = tuple(0.0 for _ in description.joint_names)
+        initial_joints = derived.initial_joints
+    else:
+        derived = dataclasses.replace(derived, initial_source="the initial_joints given")
+    if control_bound is None:
+        control_bound = derived.control_bound
+    elif not (_number(control_bound) and control_bound > 0):
+        raise ValueError(f"control_bound must be a positive finite number, got {control_bound!r}")
+    else:
+        derived = dataclasses.replace(
+            derived, control_bound=float(control_bound), control_source="given"
+        )
     task = PoseTask() if task is None else task
     hand = Hand(
         name=name,
@@ -130,7 +186,36 @@ def from_mjcf(
         robot_stiffness=robot_stiffness,
         stiffness=stiffness,
         control_bound=control_bound,
-        cost=ManipulationCost(contact=0.5, grasp=0.05, control=10.0) if cost is None else cost,
+        cost=_default_cost(control_bound) if cost is None else cost,
         contact_floor=cost is None,  # the default cost draws tips no lower than they can go
     )
-    return HandEnvironment(hand, model, task.name, task.criterion, task, TRIFINGER_PRESETS, objects)
+    return RobotEnvironment(
+        hand, model, task.name, task.criterion, task, TRIFINGER_PRESETS, objects, derived=derived
+    )
+
+
+CONTROL_SLOPE = 0.03
+"""The default cost's control weight is this over the control bound: a step at the bound
+costs every robot the same per unit of bound, whatever its joints' units and ranges."""
+
+
+def _default_cost(control_bound: float) -> ManipulationCost:
+    """The paper's manipulation cost with TriFinger's contact and grasp weights and a control
+    weight scaled to the robot's bound (TriFinger's 10 creeps on a robot whose bound is
+    large, as a hinge finger's of long links)."""
+    return ManipulationCost(contact=0.5, grasp=0.05, control=CONTROL_SLOPE / control_bound)
+
+
+class RobotEnvironment(HandEnvironment):
+    """A user's robot (:func:`from_mjcf`): a :class:`HandEnvironment` that says what it
+    derived from the robot's file (:meth:`describe`)."""
+
+    def __init__(self, *args, derived: workspace.RobotDefaults, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.derived = derived
+
+    def describe(self, plant: HandEnv) -> list[str]:
+        lines = [f"robot {self.hand.mjcf.name}: {self.derived.describe()}"]
+        if isinstance(self._sample, PoseTask):
+            lines.append(self._sample.region(plant).describe())
+        return lines

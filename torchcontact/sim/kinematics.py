@@ -44,13 +44,19 @@ def load_model(mjcf: str | Path) -> tuple[Path, mujoco.MjModel]:
     path = Path(mjcf)
     if not path.is_file():
         raise ValueError(f"mjcf must be an existing MJCF file, got {str(mjcf)!r}")
-    return path, mujoco.MjModel.from_xml_path(str(path))
+    try:
+        return path, mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as error:  # MuJoCo's parser message spans lines: its first says why
+        first = str(error).strip().splitlines()[0] if str(error).strip() else "unreadable"
+        raise ValueError(
+            f"mjcf must be a readable MJCF file, {path.name} is not: {first}"
+        ) from None
 
 
 def site_ids(model: mujoco.MjModel, tips: Sequence[str], source: str = "the model") -> list[int]:
     """MuJoCo ids of the sites named ``tips``; ``ValueError`` naming ``tips`` when one is
     missing (``source``: how the message names the file)."""
-    if isinstance(tips, str) or not tips:
+    if isinstance(tips, str) or not tips or not all(isinstance(t, str) for t in tips):
         raise ValueError(f"tips must be a sequence of site names, got {tips!r}")
     ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) for name in tips]
     unknown = [name for name, i in zip(tips, ids, strict=True) if i < 0]

@@ -27,7 +27,7 @@ from torchcontact.sim.kinematics import (
     robot_joints,
     site_ids,
 )
-from torchcontact.validation import check_shape
+from torchcontact.validation import check_shape, check_tensor
 
 ACTUATOR_KINDS = ("position", "velocity", "motor", "other")
 """How an :class:`Actuator` turns its control into force (see :attr:`Actuator.kind`)."""
@@ -192,7 +192,14 @@ class Robot(torch.nn.Module):
 
     def forward(self, joints: torch.Tensor) -> torch.Tensor:
         """Fingertips ``(..., n_tips, 3)`` [m] of ``joints (..., n_joints)`` [rad or m]."""
+        check_tensor("joints", joints)
         if self.kinematics is not None:
+            dtype = self.kinematics.chain.dtype
+            if joints.dtype != dtype:
+                raise TypeError(
+                    f"joints must be {dtype} like the robot (move it with robot.to({joints.dtype})"
+                    f"), got {joints.dtype}"
+                )
             return self.kinematics(joints)
         check_shape(
             "joints", joints, f"(..., {self.n_joints})", joints.shape[-1:] == (self.n_joints,)
