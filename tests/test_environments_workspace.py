@@ -102,3 +102,23 @@ def test_a_task_with_a_bad_region_is_refused(fields, match):
 def test_a_bad_control_bound_is_refused():
     with pytest.raises(ValueError, match="control_bound must be a positive finite number"):
         from_mjcf(FINGER, control_bound=-1.0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults(seed):
+    from torchcontact.environments.presets import MPCSettings
+    from torchcontact.mpc.controller import ContactImplicitMPC
+    from torchcontact.mpc.trials import TrialConfig, run_trial
+
+    env = from_mjcf(FINGER, name="finger")
+    plant = env.make_plant("cube")
+    settings = MPCSettings(**{**vars(env.preset()), "compile": False})
+    mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
+    config = TrialConfig(
+        env="finger", task="reposition", object="cube", seed=seed, max_steps=150,
+        **vars(settings), stiffness=env.default_stiffness,
+    )  # fmt: skip
+    record = run_trial(config, env, plant, mpc)
+    assert record.success, record.pos_err_mm
+    pushed = np.linalg.norm(np.subtract(record.final_pose[:2], record.initial_pose[:2]))
+    assert pushed > 0.02  # a real push, not a target met where the cube stood
