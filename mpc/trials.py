@@ -412,6 +412,9 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
     unknown = sorted(set(options) - {f.name for f in fields(TrialConfig)})
     if unknown:
         raise ValueError(f"options must be fields of TrialConfig, got {unknown[0]!r}")
+    for name, values in (("pairs", pairs), ("seeds", seeds)):
+        if len(values) == 0:
+            raise ValueError(f"{name} must hold at least one entry, got none")
     for pair in pairs:
         if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
             raise ValueError(f"pairs must hold (task, object) pairs, got {pair!r}")

@@ -328,6 +328,8 @@ TRIAL_API_ERRORS = [
     (("fingertips", [("rotation", "cube")]), {"seeds": [0.5]}, r"^seeds must be non-negative"),
     (("fingertips", [("rotation", "cube")]), {"stifness": 3}, r"^options must be fields of Tri"),
     (("nowhere", [("rotation", "cube")]), {}, r"^env must be one of"),
+    (("fingertips", []), {}, r"^pairs must hold at least one entry"),
+    (("fingertips", [("rotation", "cube")]), {"seeds": []}, r"^seeds must hold at least one"),
 ]
 
 
