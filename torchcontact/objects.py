@@ -10,7 +10,6 @@ turns into a body. The same options reach it from the CLI (``--object-size``,
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +24,7 @@ from torchcontact.shapes import (
     load_object,
     make_object,
 )
+from torchcontact.validation import is_finite_number
 
 POSES = ("stable", "as-is")
 """How a mesh file's object is posed: ``"stable"`` turned onto its stable face from its centre
@@ -59,7 +59,8 @@ class ObjectOptions:
             value = getattr(self, name)
             if value is not None and not _positive(value):
                 raise ValueError(f"object {name} must be a positive finite number, got {value!r}")
-        if self.friction is not None and not (_number(self.friction) and self.friction >= 0):
+        friction = self.friction
+        if friction is not None and not (is_finite_number(friction) and friction >= 0):
             raise ValueError(
                 f"object friction must be a non-negative finite number, got {self.friction!r}"
             )
@@ -171,9 +172,5 @@ def _factor(options: ObjectOptions, extent: float) -> float | None:
     return options.scale
 
 
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def _positive(value) -> bool:
-    return _number(value) and value > 0
+    return is_finite_number(value) and value > 0

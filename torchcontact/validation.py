@@ -9,6 +9,7 @@ under ``torch.func`` transforms, nor of ``meta`` tensors.
 from __future__ import annotations
 
 import contextlib
+import math
 import threading
 from collections.abc import Iterator
 
@@ -132,6 +133,11 @@ def check_count(name: str, n: object, minimum: int = 1) -> int:
     if isinstance(n, bool) or not isinstance(n, int) or n < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
     return n
+
+
+def is_finite_number(value: object) -> bool:
+    """Whether ``value`` is a finite Python number (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def check_number(name: str, x: object) -> None:

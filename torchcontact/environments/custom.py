@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.hands import TRIFINGER_PRESETS, HandEnvironment, HandModel
 from torchcontact.sim.hands import Hand, HandEnv
 from torchcontact.sim.robot import Robot
+from torchcontact.validation import is_finite_number
 
 
 @dataclass(frozen=True)
@@ -54,13 +54,14 @@ class PoseTask:
     def __post_init__(self):
         for name in ("initial_xy", "yaw"):
             value = getattr(self, name)
-            if not (_number(value) and value >= 0):
+            if not (is_finite_number(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative finite number, got {value!r}")
         for name in ("target_x", "target_y", "lift", "placement"):
             value = getattr(self, name)
             if value is None:
                 continue
-            if not (isinstance(value, tuple) and len(value) == 2 and all(map(_number, value))):
+            pair = isinstance(value, tuple) and len(value) == 2
+            if not (pair and all(map(is_finite_number, value))):
                 raise ValueError(f"{name} must be None or two finite numbers, got {value!r}")
             if name != "placement" and value[0] > value[1]:
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {value}")
@@ -92,10 +93,6 @@ class PoseTask:
         )
         target[2] += rng.uniform(*region.lift)
         return initial, target
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _reach(plant: HandEnv) -> workspace.Reach:
@@ -163,7 +160,7 @@ def from_mjcf(
         derived = dataclasses.replace(derived, initial_source="the initial_joints given")
     if control_bound is None:
         control_bound = derived.control_bound
-    elif not (_number(control_bound) and control_bound > 0):
+    elif not (is_finite_number(control_bound) and control_bound > 0):
         raise ValueError(f"control_bound must be a positive finite number, got {control_bound!r}")
     else:
         derived = dataclasses.replace(
