@@ -122,3 +122,8 @@ def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults
     assert record.success, record.pos_err_mm
     pushed = np.linalg.norm(np.subtract(record.final_pose[:2], record.initial_pose[:2]))
     assert pushed > 0.02  # a real push, not a target met where the cube stood
+
+
+def test_a_robot_file_that_holds_an_object_is_refused_naming_it():
+    with pytest.raises(ValueError, match=r"robot must hold the robot only, pusher.xml also has"):
+        from_mjcf(EXAMPLES / "pusher.xml", ("pusher_tip",))

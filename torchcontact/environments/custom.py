@@ -24,6 +24,7 @@ from torchcontact.environments import tasks, workspace
 from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.hands import TRIFINGER_PRESETS, HandEnvironment, HandModel
 from torchcontact.sim.hands import Hand, HandEnv
+from torchcontact.sim.kinematics import load_model, object_bodies
 from torchcontact.sim.robot import Robot
 from torchcontact.validation import is_finite_number
 
@@ -151,6 +152,7 @@ def from_mjcf(
     """
     path = Path(robot).resolve()
     description = Robot.from_mjcf(path, tips)
+    _check_robot_only(path)
     if any(actuator.kind != "position" for actuator in description.actuators):
         raise ValueError(f"robot must drive every joint with a position actuator: {path.name}")
     derived = workspace.robot_defaults(path)
@@ -189,6 +191,19 @@ def from_mjcf(
     return RobotEnvironment(
         hand, model, task.name, task.criterion, task, TRIFINGER_PRESETS, objects, derived=derived
     )
+
+
+def _check_robot_only(path: Path) -> None:
+    """``ValueError`` naming ``robot`` when the file also holds a free-jointed body: the plant
+    attaches its own object, so a scene's file belongs to ``describe_scene``."""
+    _, model = load_model(path)
+    free = sorted(model.body(b).name for b in object_bodies(model) if model.body_jntnum[b])
+    if free:
+        raise ValueError(
+            f"robot must hold the robot only, {path.name} also has the free-jointed bodies "
+            f"{free}: remove them (the plant adds the object), or read the whole scene with "
+            "torchcontact.sim.user_scene.describe_scene"
+        )
 
 
 CONTROL_SLOPE = 0.03
