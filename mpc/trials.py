@@ -66,6 +66,7 @@ from torchcontact.results import (
 )
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
+from torchcontact.validation import is_finite_number
 
 SCENES_VERSION = 11
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
@@ -441,8 +442,7 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
     for name, most in (("stiffness", MAX_STIFFNESS), ("relaxation", math.inf)):
         value = options.get(name)
-        number = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if value is not None and not (number and 0 < value <= most and math.isfinite(value)):
+        if value is not None and not (is_finite_number(value) and 0 < value <= most):
             limit = (
                 f"a positive number at most {most:g}"
                 if most < math.inf

@@ -37,6 +37,7 @@ from torchcontact.stiffness import (
     Relative,
     StateNetwork,
 )
+from torchcontact.validation import is_finite_number
 
 
 def _rows(meta: dict) -> int:
@@ -164,7 +165,7 @@ class FitConfig:
             )
         for name in ("lr", "distance_scale"):
             value = getattr(self, name)
-            if not (_is_number(value) and math.isfinite(value) and value > 0):
+            if not (is_finite_number(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         seed = self.seed
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -178,10 +179,6 @@ class FitConfig:
                 "loss_contacts 'geometry' needs a loss_horizon above 1 (one step sees no new "
                 "state), got loss_horizon 1"
             )
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _check_types(config, meta) -> None:
