@@ -47,6 +47,7 @@ from tqdm.auto import tqdm
 
 from torchcontact.contacts import Contacts
 from torchcontact.digests import content_sha256
+from torchcontact.environments import ENVIRONMENTS
 from torchcontact.integrate import JointLayout, difference
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
@@ -292,6 +293,8 @@ def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, 
 
 def _check_collect(scene, trajectories, steps, actions, seed, noise, planner) -> None:
     """``ValueError`` naming the first argument of :func:`collect` that is out of range."""
+    if scene != BOX_PUSHING and scene not in ENVIRONMENTS:  # registered ones included
+        raise ValueError(f"scene must be one of {(*ENVIRONMENTS, BOX_PUSHING)}, got {scene!r}")
     if actions not in ACTIONS:
         raise ValueError(f"actions must be one of {ACTIONS}, got {actions!r}")
     if scene == BOX_PUSHING and actions != "random":

@@ -40,6 +40,7 @@ from torchcontact.mpc.sources import (
     anchor_states,
     redetected,
 )
+from torchcontact.sim.dynamics import joint_layout
 from torchcontact.sim.geometry import scene_geometry
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import QuasiDynamic
@@ -227,12 +228,13 @@ class ContactImplicitMPC:
         is the plant's :attr:`~torchcontact.sim.plant.Plant.contact_capacity`, the same for
         every object of the environment, so their plans share one compiled graph.
         """
+        _check_from_env(env, plant, model, planner, settings, cost, background_compile)
         if settings is None or isinstance(settings, str):
             settings = env.preset() if settings is None else env.preset(settings)
         if model is None:
             model = default_model(env)
         elif isinstance(model, str):
-            model = contact_model(model)
+            model = _named("model", model, contact_model)
         if planner is None:
             planner = env.planner
         if isinstance(planner, str):
@@ -630,3 +632,39 @@ class ContactImplicitMPC:
 def _corrected(v: torch.Tensor, corrections: torch.Tensor | None, t: int) -> torch.Tensor:
     """Velocity ``v (..., nv)`` of step ``t`` plus its fixed correction, if any."""
     return v if corrections is None else v + corrections[t]
+
+
+def _named(argument: str, name: str, build: Callable):
+    """``build(name)``, its unknown-name error naming ``argument`` instead of ``name``."""
+    try:
+        return build(name)
+    except ValueError as error:
+        raise ValueError(f"{argument}: {error}".replace(": name must", " must", 1)) from None
+
+
+def _check_from_env(env, plant, model, planner, settings, cost, background_compile) -> None:
+    """``TypeError`` naming the argument of :meth:`ContactImplicitMPC.from_env` of the wrong
+    kind; ``ValueError`` for a plant that is not ``env``'s (its joints differ)."""
+    if not isinstance(env, Environment):
+        raise TypeError(f"env must be an Environment, got {type(env).__name__}")
+    if not isinstance(plant, Plant):
+        raise TypeError(f"plant must be a Plant (env.make_plant(...)), got {type(plant).__name__}")
+    joints = joint_layout(plant.model).joints
+    if joints != env.layout.joints:
+        raise ValueError(
+            f"plant must be a plant of {env.name} (joints {', '.join(env.layout.joints)}), got "
+            f"one with joints {', '.join(joints)}"
+        )
+    kinds = (
+        ("model", model, (ContactModel, str), "a ContactModel, a model's name or None"),
+        ("settings", settings, (MPCSettings, str), "MPCSettings, a preset's name or None"),
+    )
+    for name, value, accepted, expected in kinds:
+        if value is not None and not isinstance(value, accepted):
+            raise TypeError(f"{name} must be {expected}, got {type(value).__name__}")
+    if planner is not None and not (isinstance(planner, str) or hasattr(planner, "plan")):
+        raise TypeError(f"planner must be a Planner, a planner's name or None, got {planner!r}")
+    if cost is not None and not (isinstance(cost, str) or callable(cost)):
+        raise TypeError(f"cost must be a Cost (a callable), a cost's name or None, got {cost!r}")
+    if not isinstance(background_compile, bool):
+        raise TypeError(f"background_compile must be True or False, got {background_compile!r}")

@@ -31,6 +31,7 @@ import hashlib
 import importlib.metadata
 import json
 import math
+import os
 import re
 import time
 from collections.abc import Callable, Sequence
@@ -137,7 +138,7 @@ RELEASE_FIELDS = (
     *(f"inputs.{key}" for key in VERSION_KEYS),
 )
 """Identity fields that change with a release of ours or of a library, not with what the user
-asked (``inputs``: a record naming files but written before inputs were recorded). A record
+asked (``inputs``: a record written before inputs were recorded). A record
 differing only in these is set aside and run again; any other difference refuses the run."""
 
 FINITE_KEYS = (
@@ -450,6 +451,7 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
             )
             raise ValueError(f"{name} must be {limit} (or None), got {value!r}")
     mpc_model(options.get("model", DEFAULT_MODEL))
+    resolve_learned(options.get("learned"), description.name)
 
 
 def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
@@ -732,7 +734,7 @@ def read_record(path: Path) -> tuple[dict | None, str | None]:
 def record_differences(record: dict, config: TrialConfig, inputs: dict) -> dict[str, tuple]:
     """Identity fields where the usable saved ``record`` differs from ``config`` and
     ``inputs``, as ``{field: (old, new)}`` (``inputs.KEY`` for an input; ``inputs`` when the
-    record predates inputs and ``config`` names a file)."""
+    record predates inputs)."""
     new = asdict(config)
     stored = stored_config(record)
     differences = {key: (stored[key], new[key]) for key in new if stored[key] != new[key]}
@@ -740,9 +742,8 @@ def record_differences(record: dict, config: TrialConfig, inputs: dict) -> dict[
         if record.get(key, off) != off:
             differences[key] = (record[key], "an option since removed")
     old = record.get("inputs")
-    if old is None:
-        if any(inputs[key] is not None for key in INPUT_FILES):
-            differences["inputs"] = ("not recorded", "file hashes")
+    if old is None:  # written before inputs were recorded: no versions, no file hashes
+        differences["inputs"] = ("not recorded", "versions and file hashes")
         return differences
     for key in dict.fromkeys([*old, *inputs]):
         if old.get(key) != inputs.get(key):
@@ -872,6 +873,7 @@ def run_trials(
     process holds raises :class:`~torchcontact.results.FolderInUse`. Ctrl-C raises
     :class:`TrialsInterrupted`, counting the trials whose records are kept.
     """
+    _check_run_arguments(configs, out, progress, on_record)
     check_backend(workers, backend, address)
     folder = None if out is None else Path(out)
     distinct = list(dict.fromkeys(configs))
@@ -891,6 +893,20 @@ def run_trials(
         plan = _plan(folder, distinct, inputs)
         records = _run_planned(plan, inputs, folder, videos, progress, on_record, where)
     return [records[config] for config in configs]
+
+
+def _check_run_arguments(configs, out, progress, on_record) -> None:
+    """``TypeError`` naming the argument of :func:`run_trials` of the wrong kind."""
+    if isinstance(configs, TrialConfig) or not isinstance(configs, Sequence):
+        raise TypeError(
+            f"configs must be a sequence of TrialConfig (a list), got {type(configs).__name__}"
+        )
+    if out is not None and not isinstance(out, (str, os.PathLike)):
+        raise TypeError(f"out must be a folder path or None, got {type(out).__name__}")
+    if not isinstance(progress, bool):
+        raise TypeError(f"progress must be True or False, got {progress!r}")
+    if on_record is not None and not callable(on_record):
+        raise TypeError(f"on_record must be callable or None, got {type(on_record).__name__}")
 
 
 def _run_planned(plan: dict, inputs: dict, folder, videos, progress, on_record, where: dict):

@@ -91,7 +91,7 @@ def test_a_config_builds_its_environment_plant_and_mpc():
     assert CONFIG.variant == "fingertips" and CONFIG.name == "fingertips_rotation_cube_seed0"
 
 
-def test_trial_configs_fill_in_the_environments_defaults():
+def test_trial_configs_fill_in_the_environments_defaults(tmp_path):
     env = environment("trifinger")
     configs = trial_configs("trifinger", [("in-hand", "cube"), ("in-hand", "mug")], range(2))
     assert [(c.task, c.object, c.seed) for c in configs] == [
@@ -108,7 +108,9 @@ def test_trial_configs_fill_in_the_environments_defaults():
     (qp,) = trial_configs("fingertips", [("rotation", "cube")], [3], PAPER, 7, model="relaxed_qp")
     assert (qp.seed, qp.max_steps, qp.settings) == (3, 7, PAPER)
     assert qp.relaxation == PAPER_RELAXATION and qp.stiffness is None
-    (learned,) = trial_configs("fingertips", [("rotation", "cube")], [0], learned="model.pt")
+    (tmp_path / "model.pt").write_bytes(b"")  # only named here: trial_configs asks it exists
+    model = str(tmp_path / "model.pt")
+    (learned,) = trial_configs("fingertips", [("rotation", "cube")], [0], learned=model)
     assert learned.stiffness is None and learned.variant == "fingertips_learned"
 
 
@@ -473,15 +475,15 @@ def test_a_changed_mesh_or_checkpoint_at_the_same_path_refuses_the_run(
     assert str(path) in str(error.value)
 
 
-def test_a_record_without_inputs_counts_as_current_only_when_it_names_no_file(
-    tmp_path, fast_record
-):
+def test_a_record_without_inputs_is_of_an_older_release_and_run_again(tmp_path, fast_record):
     (config,) = FAST
     legacy = {k: v for k, v in fast_record.items() if k != "inputs"}
     path = _record_path(tmp_path, config)
     path.parent.mkdir(parents=True)
     path.write_text(json.dumps(legacy))
-    assert record_status(path, config, trial_inputs(config))[0] == "reuse"
+    # no versions recorded: as stale as a record of other versions, even naming no file
+    status, differences = record_status(path, config, trial_inputs(config))
+    assert status == "stale" and list(differences) == ["inputs"]
     mesh = tmp_path / "cube.stl"
     mesh.write_bytes(b"mesh")
     config = dataclasses.replace(config, env="trifinger", object=str(mesh))

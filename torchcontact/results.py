@@ -84,17 +84,16 @@ def _nearest_existing(option: str, path: Path) -> Path:
 
 
 def writable_directory(option: str, path: Path, create: bool = True) -> Path:
-    """Check that files can be written in the folder ``path`` (``create``: create it and write
-    a probe file; else, writing nothing, check the permissions of its nearest existing folder):
-    ``ValueError`` naming ``option`` otherwise."""
+    """Check that files can be written in the folder ``path`` by creating it and a probe file
+    in it (``create`` False: the folders it made are removed again): ``ValueError`` naming
+    ``option`` otherwise. Permissions are not asked (``os.access``), since as root they are
+    always granted where writing still fails."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{option} must be a directory, got the file {str(path)!r}")
-    if not create:
-        if not os.access(_nearest_existing(option, path), os.W_OK | os.X_OK):
-            raise ValueError(f"{option} must be a writable directory, got {str(path)!r}")
-        return path
-    _nearest_existing(option, path)
+    existing = _nearest_existing(option, path)
+    chain = [path.absolute(), *path.absolute().parents]
+    made = [] if create else chain[: chain.index(existing)]  # the folders this probe makes
     try:
         path.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=path):
@@ -104,6 +103,10 @@ def writable_directory(option: str, path: Path, create: bool = True) -> Path:
         raise ValueError(
             f"{option} must be a writable directory, got {str(path)!r} ({reason})"
         ) from None
+    finally:
+        for folder in made:  # deepest first
+            with contextlib.suppress(OSError):
+                folder.rmdir()
     return path
 
 

@@ -223,6 +223,10 @@ MIN_PART_VOLUME = 1e-14
 """[m³] The least volume a convex part of an object may enclose: MuJoCo refuses a mesh below
 about 1e-15 m³ ("mesh volume is too small"), so an object is refused with this first."""
 
+MIN_THICKNESS = 1e-4
+"""[m] The least extent an object may have along any axis, a tenth of a millimetre: MuJoCo
+takes a thinner sheet without a word, but it is a sheet, not a solid for the fingers to push."""
+
 MAX_MESH_EXTENT = 1.0
 """[m] A mesh file whose largest extent, after its size or scale, exceeds this is refused: it
 is most likely in millimetres."""
@@ -267,7 +271,8 @@ def load_object(
     if size is not None and scale is not None:
         raise ValueError("size and scale both set the object's size: give one of them")
     try:
-        mesh = trimesh.load(path, force="mesh")
+        # unprocessed first: processing silently drops vertices that are not finite
+        mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # whatever trimesh's parsers raise on a file they cannot read
         raise ValueError(
             f"path must hold a readable triangle mesh, but {str(path)!r} is not one "
@@ -275,6 +280,11 @@ def load_object(
         ) from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"path must hold a triangle mesh, got nothing usable from {str(path)!r}")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(
+            f"path must hold finite vertex coordinates, but {str(path)!r} has NaN or Inf"
+        )
+    mesh.process()
     if size is None:
         factor = 1.0 if scale is None else _positive_scalar("scale", scale)
         target = mesh.extents * factor
@@ -316,6 +326,12 @@ def assemble(
     scale = size / (high - low)
     lift = 0.0 if origin_height is None else size[2] / 2 - origin_height
     offset = np.array([0.0, 0.0, lift])
+    thinnest = float(np.min(size))
+    if thinnest < MIN_THICKNESS:
+        raise ValueError(
+            f"object {name!r} is too small or too thin to be a solid: it is {thinnest:.3g} m "
+            f"across its thinnest extent, less than {MIN_THICKNESS:g} m; give it a larger size"
+        )
     fitted = tuple(convex((p.vertices - (low + high) / 2) * scale + offset) for p in parts)
     smallest = min(float(part.volume) for part in fitted)
     if smallest < MIN_PART_VOLUME:

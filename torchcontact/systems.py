@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -82,6 +83,8 @@ class QuasiDynamic(nn.Module):
         metric = _vector("object_metric", object_metric)
         check_positive("object_metric", metric)
         n_o = metric.shape[0]
+        if n_o == 0:
+            raise ValueError("object_metric must have one entry per object coordinate, got none")
         if n_robot is not None:
             check_count("n_robot", n_robot)
         elif torch.as_tensor(robot_stiffness).dim() == 0:
@@ -103,13 +106,14 @@ class QuasiDynamic(nn.Module):
         order = torch.tensor(object_dofs + robot_dofs)
         self.register_buffer("object_metric", metric)
         self.register_buffer("robot_stiffness", stiffness)
-        force = torch.as_tensor(object_force)
-        if force.dim() == 1 and force.shape[0] != n_o:
+        # a number is spread over every object coordinate; a vector must match the metric
+        force = _vector("object_force", object_force, n_o if np.ndim(object_force) == 0 else None)
+        if force.shape[0] != n_o:
             raise ValueError(
                 f"object_metric and object_force must have one entry per object coordinate "
                 f"each, got {n_o} and {force.shape[0]}"
             )
-        self.register_buffer("object_force", _vector("object_force", object_force, n_o))
+        self.register_buffer("object_force", force)
         self.register_buffer("_from_blocks", torch.argsort(order), persistent=False)
         # the object's rows in v, kept as a tensor: deriving them per call (argsort, tolist)
         # would break a compiled rollout's graph at every step
