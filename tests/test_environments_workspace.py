@@ -124,6 +124,32 @@ def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults
     assert pushed > 0.02  # a real push, not a target met where the cube stood
 
 
+@pytest.mark.parametrize("seed", [0])
+def test_the_gripper_lifts_its_cube_to_a_derived_target_and_holds_it_with_the_defaults(seed):
+    from torchcontact.environments.presets import MPCSettings
+    from torchcontact.mpc.controller import ContactImplicitMPC
+    from torchcontact.mpc.trials import TrialConfig, run_trial
+
+    env = from_mjcf(GRIPPER, name="gripper")
+    plant = env.make_plant("cube")
+    assert env._sample.region(plant).lift[0] > 0.02  # the derived task is a lift
+    settings = MPCSettings(**{**vars(env.preset()), "compile": False})
+    mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
+    config = TrialConfig(
+        env="gripper", task="reposition", object="cube", seed=seed, max_steps=120,
+        **vars(settings), stiffness=env.default_stiffness,
+    )  # fmt: skip
+    record = run_trial(config, env, plant, mpc)
+    # success holds the cube within 2 cm of a target 2-6 cm up for 20 steps: it is not dropped
+    assert record.success, record.pos_err_mm
+    assert record.final_pose[2] - record.initial_pose[2] > 0.02
+
+
+def test_a_bad_contact_stiffness_is_refused():
+    with pytest.raises(ValueError, match="stiffness must be a positive finite number"):
+        from_mjcf(FINGER, stiffness=float("nan"))
+
+
 def test_a_robot_file_that_holds_an_object_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"robot must hold the robot only, pusher.xml also has"):
         from_mjcf(EXAMPLES / "pusher.xml", ("pusher_tip",))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchcontact.environments import tasks, workspace
+from torchcontact.environments import fingertips, tasks, workspace
 from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.hands import TRIFINGER_PRESETS, HandEnvironment, HandModel
 from torchcontact.sim.hands import Hand, HandEnv
@@ -121,7 +121,7 @@ def from_mjcf(
     initial_joints: tuple[float, ...] | None = None,
     control_bound: float | None = None,
     robot_stiffness: float = 100.0,
-    stiffness: float = 0.5,
+    stiffness: float | None = None,
     frame_skip: int = 50,
     objects: tuple[str, ...] = ("cube",),
     clear_start: bool = True,
@@ -144,12 +144,15 @@ def from_mjcf(
             position actuators command, over
             :data:`~torchcontact.environments.workspace.STEPS_ACROSS` steps.
         robot_stiffness: Kᵣ of the quasi-dynamic robot.
-        stiffness: K of the paper's contact model.
+        stiffness: K of the paper's contact model; None: :data:`STIFFNESS`.
         frame_skip: MuJoCo substeps (2 ms) per control step.
         objects: the built-in objects of ``--object all``.
         clear_start: move the initial joints out of an object placed through a finger at
             the start of a trial (:attr:`~torchcontact.sim.hands.Hand.clear_start`).
     """
+    stiffness = STIFFNESS if stiffness is None else stiffness
+    if not (is_finite_number(stiffness) and stiffness > 0):
+        raise ValueError(f"stiffness must be a positive finite number, got {stiffness!r}")
     path = Path(robot).resolve()
     description = Robot.from_mjcf(path, tips)
     _check_robot_only(path)
@@ -206,6 +209,19 @@ def _check_robot_only(path: Path) -> None:
         )
 
 
+PAPER_STIFFNESS = 0.5
+"""The paper's K of its hands (TriFinger's), which ``--stiffness paper`` plans with."""
+
+STIFFNESS = fingertips.STIFFNESS
+"""The default K [N/m]: the fingertips' K, the constant ``torchcontact learn-k`` fits to
+MuJoCo's MPC rollouts of the cube under tip contact, whose object model a user's robot shares
+(εMₒ/h² = 50 N/m per 10 g, h = 0.1 s, Kᵣ = 100). The paper's hand K, :data:`PAPER_STIFFNESS`,
+is for objects turned on the ground: its friction rows cannot carry a pinched object's weight,
+so at K ≤ 1 the example gripper's plans drop the cube they lift; on the gripper's own
+transitions with the cube between its pads, 4.64 predicts the cube's next step best of the
+K tried (docs/experiments.md, "2026-12-02: holding a grasp with the example gripper")."""
+
+
 CONTROL_SLOPE = 0.03
 """The default cost's control weight is this over the control bound: a step at the bound
 costs every robot the same per unit of bound, whatever its joints' units and ranges."""
@@ -225,6 +241,7 @@ class RobotEnvironment(HandEnvironment):
     def __init__(self, *args, derived: workspace.RobotDefaults, **kwargs):
         super().__init__(*args, **kwargs)
         self.derived = derived
+        self.stiffness = PAPER_STIFFNESS  # the paper's; default_stiffness is the model's K
 
     def describe(self, plant: HandEnv) -> list[str]:
         lines = [f"robot {self.hand.mjcf.name}: {self.derived.describe()}"]
