@@ -34,6 +34,7 @@ import math
 import os
 import re
 import time
+import typing
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -46,6 +47,7 @@ from torchcontact import generated
 from torchcontact.digests import content_sha256
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
+from torchcontact.environments.options import CostOptions, RobotOptions
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ContactModel
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
@@ -101,6 +103,9 @@ LEGACY_DEFAULTS = {
     "hold_first": 0,
     "hold_approach": 1.0,
     "residual_plan": "fixed",
+    **dict.fromkeys(
+        ("initial_joints", "control_bound", "placement", "target_x", "target_y", "lift")
+    ),
 }
 """Values of configuration keys that records written before the key existed lack."""
 
@@ -197,8 +202,7 @@ class TrialConfig:
         env: the environment's registered name (``"custom"`` with ``robot``).
         task, object: the task and the object (a name or a mesh path); seed: the trial's.
         max_steps: control steps at most.
-        max_iter, memory, horizon, dtype, compile, gaps: the solver settings
-            (:class:`~torchcontact.environments.presets.MPCSettings`).
+        settings: the solver settings.
         stiffness: K of the paper's model (None with ``learned`` or the QP).
         model: one of :data:`~torchcontact.mpc.models.MPC_MODELS`; relaxation: the paper's κ
             of a model that takes one (the relaxed QP).
@@ -206,19 +210,17 @@ class TrialConfig:
             environment's shipped model (:mod:`torchcontact.shipped`).
         planner: the planner's registered name.
         scenes: :data:`SCENES_VERSION`; collision: how the object collides.
-        robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``).
-        cost: a cost's registered name, None for the environment's.
-        object_size, object_scale, object_mass, object_friction: the user's settings of the
-            object (:class:`~torchcontact.objects.ObjectOptions`), None for the scene's;
-            object_pose: how a mesh file's object is posed (``"stable"`` or ``"as-is"``).
-        hold_first: the contacts that must hold an object that tips before it slides before
-            the plan moves it (:class:`~torchcontact.environments.costs.HoldFirst`; 0: none);
-            :func:`trial_configs` gives the environment's unless told.
-        hold_approach: with ``hold_first``, the weight of the cost's contact term until the
-            object is held (1: the paper's throughout); :func:`trial_configs` gives the
-            environment's unless told.
+        robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``);
+            robot_options: what is set of its environment beyond its file.
+        cost: a cost's registered name, None for the environment's; cost_options: the
+            environment's cost terms (:func:`trial_configs` gives the environment's unless
+            told; none with ``cost``).
+        object_options: the user's settings of the object, its defaults for the scene's.
         residual_plan: how the plan uses a learned model's object residual
             (:data:`~torchcontact.mpc.controller.RESIDUAL_PLANS`; no effect without one).
+
+    A record holds these flat, each part's fields under :data:`RECORD_PARTS`' prefix
+    (:func:`flat_config`), as records have always held them.
     """
 
     env: str
@@ -226,47 +228,21 @@ class TrialConfig:
     object: str
     seed: int
     max_steps: int
-    max_iter: int
-    compile: bool
-    dtype: str
+    settings: MPCSettings
     stiffness: float | None
     model: str = DEFAULT_MODEL
     relaxation: float | None = None
     learned: str | None = None
-    memory: int = PAPER.memory
-    horizon: int = PAPER.horizon
     scenes: int = SCENES_VERSION
     collision: str = BENCHMARK_COLLISION
-    gaps: str = PAPER.gaps
     planner: str = "lbfgs"
     robot: str | None = None
     tips: tuple[str, ...] | None = None
+    robot_options: RobotOptions = RobotOptions()
     cost: str | None = None
-    object_size: float | None = None
-    object_scale: float | None = None
-    object_mass: float | None = None
-    object_friction: float | None = None
-    object_pose: str = "stable"
-    hold_first: int = 0
-    hold_approach: float = 1.0
+    cost_options: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
+    object_options: ObjectOptions = ObjectOptions()
     residual_plan: str = "fixed"
-
-    @property
-    def object_options(self) -> ObjectOptions:
-        """The user's settings of the object."""
-        return ObjectOptions(
-            self.object_size,
-            self.object_scale,
-            self.object_mass,
-            self.object_friction,
-            self.object_pose,
-        )
-
-    @property
-    def settings(self) -> MPCSettings:
-        """The solver settings of this trial."""
-        names = [f.name for f in fields(MPCSettings)]
-        return MPCSettings(**{name: getattr(self, name) for name in names})
 
     @property
     def variant(self) -> str:
@@ -289,18 +265,58 @@ class TrialConfig:
     def matches(self, record: dict) -> bool:
         """Whether the saved ``record`` was made with this configuration (inputs aside)."""
         removed = any(record.get(key, off) != off for key, off in REMOVED_OPTIONS.items())
-        return not removed and stored_config(record) == asdict(self)
+        return not removed and stored_config(record) == flat_config(self)
+
+
+RECORD_PARTS = {
+    "settings": (MPCSettings, ""),
+    "robot_options": (RobotOptions, ""),
+    "cost_options": (CostOptions, ""),
+    "object_options": (ObjectOptions, "object"),
+}
+"""The typed parts of a :class:`TrialConfig` and the prefix of their fields in a record (and
+on the command line): ``object_options.size`` is ``object_size``, ``--object-size``."""
+
+
+def _key(prefix: str, name: str) -> str:
+    return f"{prefix}_{name}" if prefix else name
+
+
+def flat_config(config: TrialConfig) -> dict:
+    """``config`` as a record holds it: its fields, each part's under its prefix."""
+    flat = {}
+    for f in fields(TrialConfig):
+        value = getattr(config, f.name)
+        if f.name in RECORD_PARTS:
+            prefix = RECORD_PARTS[f.name][1]
+            flat.update({_key(prefix, k): v for k, v in asdict(value).items()})
+        else:
+            flat[f.name] = value
+    return flat
+
+
+def config_from_flat(flat: dict) -> TrialConfig:
+    """The :class:`TrialConfig` of :func:`flat_config`'s ``flat``; ``ValueError`` from a part
+    that refuses its values."""
+    parts = {
+        name: cls(**{f.name: flat[_key(prefix, f.name)] for f in fields(cls)})
+        for name, (cls, prefix) in RECORD_PARTS.items()
+    }
+    rest = {f.name: flat[f.name] for f in fields(TrialConfig) if f.name not in RECORD_PARTS}
+    return TrialConfig(**rest, **parts)
+
+
+RECORD_KEYS = tuple(flat_config(TrialConfig("", "", "", 0, 1, PAPER, None)))
+"""The configuration keys of a record, in :func:`flat_config`'s order."""
 
 
 def stored_config(record: dict) -> dict:
-    """The :class:`TrialConfig` fields of a saved ``record``, completed by
-    :data:`LEGACY_DEFAULTS` and :data:`LEGACY_MODELS` (``tips`` as a tuple)."""
-    stored = {f.name: record.get(f.name, LEGACY_DEFAULTS.get(f.name)) for f in fields(TrialConfig)}
+    """The configuration keys of a saved ``record`` (:data:`RECORD_KEYS`), completed by
+    :data:`LEGACY_DEFAULTS` and :data:`LEGACY_MODELS`, its JSON lists as tuples."""
+    stored = {key: record.get(key, LEGACY_DEFAULTS.get(key)) for key in RECORD_KEYS}
     if isinstance(stored["model"], str):
         stored["model"] = LEGACY_MODELS.get(stored["model"], stored["model"])
-    if isinstance(stored["tips"], list):
-        stored["tips"] = tuple(stored["tips"])
-    return stored
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()}
 
 
 @dataclass(frozen=True)
@@ -337,7 +353,7 @@ class TrialRecord:
     def to_dict(self) -> dict:
         """The JSON-able record: the configuration's fields, then the outcome's."""
         outcome = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "config"}
-        return {**asdict(self.config), **outcome}
+        return {**flat_config(self.config), **outcome}
 
     @classmethod
     def from_dict(cls, record: dict) -> TrialRecord:
@@ -347,7 +363,7 @@ class TrialRecord:
         optional = (*OBJECT_FACTS, "eager_steps", "start_penetration_mm")
         outcome = {name: record[name] for name in names if name not in optional}
         outcome.update({name: record.get(name) for name in optional})
-        config = TrialConfig(**stored_config(record))
+        config = config_from_flat(stored_config(record))
         return cls(config=config, inputs=record.get("inputs"), **outcome)
 
 
@@ -364,7 +380,9 @@ def trial_configs(
     ``max_steps`` (default its criterion's), the environment's planner and its shipped model
     (or, where it ships none, the paper model at its default K) unless ``options`` (other
     :class:`TrialConfig` fields) say otherwise."""
-    description = environment(env, options.get("robot"), options.get("tips"))
+    _check_parts(options)
+    robot = options.get("robot")
+    description = environment(env, robot, options.get("tips"), options.get("robot_options"))
     settings = _settings(description, settings)
     pairs, seeds = (x if hasattr(x, "__len__") else list(x) for x in (pairs, seeds))
     _check_trial_arguments(description, pairs, seeds, max_steps, options)
@@ -375,11 +393,7 @@ def trial_configs(
         options.update(default_model_fields(description))
     options.setdefault("stiffness", None)
     options.setdefault("planner", description.planner)
-    if options.get("hold_first") is None:
-        options["hold_first"] = description.hold_first if options.get("cost") is None else 0
-    if options.get("hold_approach") is None:
-        approach = description.hold_approach if options["hold_first"] else 1.0
-        options["hold_approach"] = approach if options.get("cost") is None else 1.0
+    options["cost_options"] = _cost_options(description, options)
     steps = description.criterion.max_steps if max_steps is None else max_steps
     return [
         TrialConfig(
@@ -388,12 +402,37 @@ def trial_configs(
             object=obj,
             seed=seed,
             max_steps=steps,
-            **asdict(settings),
+            settings=settings,
             **options,
         )
         for task, obj in pairs
         for seed in seeds
     ]
+
+
+def _check_parts(options: dict) -> None:
+    """``TypeError`` naming a typed part of :func:`trial_configs`' ``options`` of another
+    type."""
+    for name, (cls, _) in RECORD_PARTS.items():
+        value = options.get(name)
+        if name != "settings" and value is not None and not isinstance(value, cls):
+            raise TypeError(f"{name} must be {cls.__name__}, got {type(value).__name__}")
+    if "settings" in options:
+        raise ValueError("settings is trial_configs' fourth argument, not one of its options")
+
+
+def _cost_options(description: Environment, options: dict) -> CostOptions:
+    """The cost terms of :func:`trial_configs`: those given, else the environment's (none with
+    another cost)."""
+    given = options.get("cost_options") or CostOptions()
+    other_cost = options.get("cost") is not None
+    hold = given.hold_first
+    if hold is None:
+        hold = 0 if other_cost else description.hold_first
+    approach = given.hold_approach
+    if approach is None:
+        approach = description.hold_approach if hold and not other_cost else 1.0
+    return CostOptions(hold_first=hold, hold_approach=approach)
 
 
 def _settings(description: Environment, settings) -> MPCSettings:
@@ -474,7 +513,7 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
         if not Path(path).is_file():
             raise ValueError(f"{field} must be an existing file, got {path!r} ({config.name})")
         inputs[key] = content_sha256(path, hashes)
-    stable = is_mesh_file(config.object) and config.object_pose == "stable"
+    stable = is_mesh_file(config.object) and config.object_options.pose == "stable"
     inputs["object_rest"] = RESTING_RULE if stable else None
     return {**inputs, **library_versions()}
 
@@ -488,14 +527,15 @@ def trial_model(config: TrialConfig, h: float) -> ContactModel:
 
 def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplicitMPC]:
     """The environment, the plant and the MPC of ``config``."""
-    env = environment(config.env, config.robot, config.tips)
+    env = environment(config.env, config.robot, config.tips, config.robot_options)
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))
     cost = config.cost
+    terms = config.cost_options
     if cost is None:
-        cost = env.cost(plant, hold_first=config.hold_first, hold_approach=config.hold_approach)
-    elif config.hold_first or config.hold_approach != 1:
-        term = "hold_first" if config.hold_first else "hold_approach"
+        cost = env.cost(plant, **asdict(terms))
+    elif terms.hold_first or terms.hold_approach != 1:
+        term = "hold_first" if terms.hold_first else "hold_approach"
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")
     mpc = ContactImplicitMPC.from_env(
         env,
@@ -622,7 +662,8 @@ _CACHE: dict = {}  # per process: the environment, plant and MPC of the last tri
 
 def _setup_key(config: TrialConfig) -> tuple:
     """What the plant and MPC of a trial depend on: everything but the task and the seed."""
-    return tuple(v for k, v in asdict(config).items() if k not in ("task", "seed", "max_steps"))
+    flat = flat_config(config)
+    return tuple(v for k, v in flat.items() if k not in ("task", "seed", "max_steps"))
 
 
 def _run_job(job: _Job) -> TrialRecord:
@@ -638,7 +679,7 @@ def _run_job(job: _Job) -> TrialRecord:
         # reaches its recompile limit after a few objects and silently runs eager from then on.
         torch._dynamo.reset()
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
-        if job.config.compile:
+        if job.config.settings.compile:
             quiet_known_inductor_warnings()
     frames = [] if job.video is not None else None
     env, plant, mpc = _CACHE["env"], _CACHE["plant"], _CACHE["mpc"]
@@ -650,17 +691,33 @@ def _run_job(job: _Job) -> TrialRecord:
     return record
 
 
-_CONFIG_KINDS = {
-    **dict.fromkeys(("env", "task", "object", "dtype", "model", "collision", "gaps"), "str"),
-    "object_pose": "str",
-    **dict.fromkeys(("planner",), "str"),
-    **dict.fromkeys(("seed", "max_steps", "max_iter", "memory", "horizon", "scenes"), "int"),
-    "compile": "bool",
-    **dict.fromkeys(("stiffness", "relaxation"), "number?"),
-    **dict.fromkeys(("object_size", "object_scale", "object_mass", "object_friction"), "number?"),
-    **dict.fromkeys(("learned", "robot", "cost"), "str?"),
-    "tips": "strs?",
-}
+def _json_kind(hint) -> str:
+    """The :func:`_is` kind of a field annotated ``hint`` (``X | None``: ``"X?"``)."""
+    args = typing.get_args(hint)
+    optional = type(None) in args and typing.get_origin(hint) is not tuple
+    if optional:
+        (hint,) = [a for a in args if a is not type(None)]
+    if typing.get_origin(hint) is tuple:
+        kind = {float: "numbers", int: "ints", str: "strs"}[typing.get_args(hint)[0]]
+    else:
+        kind = {float: "number", int: "int", str: "str", bool: "bool"}[hint]
+    return kind + ("?" if optional else "")
+
+
+def _config_kinds() -> dict[str, str]:
+    """The kind of each of :data:`RECORD_KEYS`, from the annotations of the fields it holds."""
+    kinds = {}
+    for name, hint in typing.get_type_hints(TrialConfig).items():
+        if name not in RECORD_PARTS:
+            kinds[name] = _json_kind(hint)
+            continue
+        cls, prefix = RECORD_PARTS[name]
+        for field in fields(cls):
+            kinds[_key(prefix, field.name)] = _json_kind(typing.get_type_hints(cls)[field.name])
+    return kinds
+
+
+_CONFIG_KINDS = _config_kinds()
 _OUTCOME_KINDS = {
     **dict.fromkeys(("success", "fell"), "bool"),
     **dict.fromkeys(("steps", "contact_slots", "contacts_found_max"), "int"),
@@ -712,6 +769,10 @@ def record_problem(record) -> str | None:
             return f"{key} must be finite and >= 0"
     if not 1 <= record["steps"] <= stored["max_steps"]:
         return f"steps must lie in [1, max_steps = {stored['max_steps']}], got {record['steps']}"
+    try:
+        config_from_flat(stored)
+    except ValueError as error:  # a part that refuses its values: an edited record
+        return f"its configuration is refused: {error}"
     inputs = record.get("inputs")
     if inputs is not None and not (
         isinstance(inputs, dict) and all(_is(v, "str?") for v in inputs.values())
@@ -735,7 +796,7 @@ def record_differences(record: dict, config: TrialConfig, inputs: dict) -> dict[
     """Identity fields where the usable saved ``record`` differs from ``config`` and
     ``inputs``, as ``{field: (old, new)}`` (``inputs.KEY`` for an input; ``inputs`` when the
     record predates inputs)."""
-    new = asdict(config)
+    new = flat_config(config)
     stored = stored_config(record)
     differences = {key: (stored[key], new[key]) for key in new if stored[key] != new[key]}
     for key, off in REMOVED_OPTIONS.items():
@@ -811,10 +872,8 @@ def _check_names(configs: Sequence[TrialConfig]) -> None:
     for config in configs:
         other = seen.setdefault(config.name, config)
         if other != config:
-            differences = {
-                k: (v, getattr(config, k)) for k, v in asdict(other).items()
-                if v != getattr(config, k)
-            }  # fmt: skip
+            mine = flat_config(config)
+            differences = {k: (v, mine[k]) for k, v in flat_config(other).items() if v != mine[k]}
             raise ValueError(
                 f"configs: two trials would write the same record {config.name}.json but "
                 f"differ in {describe_differences(differences)}; run them into separate out "
@@ -953,7 +1012,7 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
     (writing each record as it finishes), and with a compiled MPC the first trial runs alone
     first: it compiles the MPC's graph into the machine's on-disk cache, which the workers then
     load instead of each compiling it anew. On Ray every trial is its own task."""
-    compiled = [job.config for job in jobs if job.config.compile]
+    compiled = [job.config for job in jobs if job.config.settings.compile]
     if compiled:
         tqdm.write(compile_notice(compiled[0].env))
     if workers == 1 or backend != "local" or len(jobs) <= 1:
@@ -962,7 +1021,7 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
             yield index, record, False
         return
     first = 0
-    if jobs[0].config.compile:
+    if jobs[0].config.settings.compile:
         record = _run_job(jobs[0])
         _CACHE["mpc"].wait_for_compile()  # the graph in the cache before the workers start
         yield 0, record, False

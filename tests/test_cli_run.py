@@ -1,6 +1,5 @@
 """``torchcontact run fingertips``: options, one short trial end to end, its files, resuming."""
 
-import dataclasses
 import json
 
 import pytest
@@ -104,8 +103,8 @@ def test_the_options_become_one_trial_config_per_seed_and_pair():
         object=pairs[0][1],
         seed=0,
         max_steps=env.criterion.max_steps,
+        settings=balanced,
         stiffness=STIFFNESS,
-        **dataclasses.asdict(balanced),
     )
     assert configs[0].settings == balanced
 

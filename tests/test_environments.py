@@ -103,7 +103,7 @@ def test_a_user_robot_from_its_mjcf_pushes_a_cube_to_its_target_closed_loop():
 
     config = TrialConfig(
         env="gripper", task="reposition", object="cube", seed=0, max_steps=150,
-        max_iter=10, compile=False, dtype="float64", stiffness=0.5,
+        settings=MPCSettings(max_iter=10, compile=False), stiffness=0.5,
     )  # fmt: skip
     record = run_trial(config, env, plant, mpc)
     assert record.success, record.pos_err_mm

@@ -9,12 +9,18 @@ import math
 import pytest
 import torch
 
-from mpc.trials import LEGACY_DEFAULTS, build_trial, stored_config, trial_configs
 from torchcontact.cli import main
 from torchcontact.contacts import Contacts
-from torchcontact.environments import environment
+from torchcontact.environments import CostOptions, environment
 from torchcontact.environments.costs import HOLDING_DISTANCE, HoldFirst, ManipulationCost
 from torchcontact.environments.hands import tips_before_sliding
+from torchcontact.mpc.trials import (
+    LEGACY_DEFAULTS,
+    build_trial,
+    flat_config,
+    stored_config,
+    trial_configs,
+)
 from torchcontact.sim.hands import HandEnv
 
 F64 = torch.float64
@@ -176,24 +182,30 @@ def test_the_hands_weigh_the_approach_to_a_hold():
 
 
 def test_a_trial_plans_with_its_hold():
-    configs = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_first=2)
-    assert configs[0].hold_first == 2
+    held = CostOptions(hold_first=2)
+    configs = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], cost_options=held)
+    assert configs[0].cost_options.hold_first == 2
     _, _, mpc = build_trial(configs[0])
     assert mpc.cost.hold is not None and mpc.cost.hold.grip == 2
     default = trial_configs("trifinger", [("in-hand", "cube")], [0])[0]
-    assert default.hold_first == environment("trifinger").hold_first
-    assert trial_configs("fingertips", [("rotation", "cube")], [0])[0].hold_first == 0
+    assert default.cost_options.hold_first == environment("trifinger").hold_first
+    fingertips = trial_configs("fingertips", [("rotation", "cube")], [0])[0]
+    assert fingertips.cost_options.hold_first == 0
     new_keys = ("hold_first", "hold_approach")
-    old = {k: v for k, v in vars(default).items() if k not in new_keys}
+    old = {k: v for k, v in flat_config(default).items() if k not in new_keys}
     assert stored_config(old)["hold_first"] == LEGACY_DEFAULTS["hold_first"] == 0  # ran without
-    unheld = trial_configs("trifinger", [("in-hand", "cube")], [0], hold_first=0)[0]
+    unheld = trial_configs(
+        "trifinger", [("in-hand", "cube")], [0], cost_options=CostOptions(hold_first=0)
+    )[0]
     assert stored_config(old)["hold_approach"] == LEGACY_DEFAULTS["hold_approach"] == 1.0
-    assert default.hold_approach == environment("trifinger").hold_approach
-    assert unheld.hold_approach == 1.0  # no hold to approach
-    drawn = trial_configs("trifinger", [("in-hand", "water_bottle")], [0], hold_approach=3.0)
+    assert default.cost_options.hold_approach == environment("trifinger").hold_approach
+    assert unheld.cost_options.hold_approach == 1.0  # no hold to approach
+    drawn = trial_configs(
+        "trifinger", [("in-hand", "water_bottle")], [0], cost_options=CostOptions(hold_approach=3.0)
+    )
     assert build_trial(drawn[0])[2].cost.hold.approach == 3.0
     pushing = trial_configs("trifinger", [("in-hand", "cube")], [0], cost="pushing")[0]
-    assert pushing.hold_approach == 1.0
+    assert pushing.cost_options.hold_approach == 1.0
 
 
 def test_the_cli_refuses_a_meaningless_hold(capsys):

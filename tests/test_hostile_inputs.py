@@ -156,16 +156,25 @@ PARSER_ERRORS = [
 
 
 PARSER_ERRORS += [
-    (["run", "fingertips", "--max-iter", "0"], "--max-iter must be >= 1, got 0"),
-    (["run", "fingertips", "--memory", "0"], "--memory must be >= 1, got 0"),
-    (["run", "fingertips", "--horizon", "0"], "--horizon must be >= 1, got 0"),
+    (
+        ["run", "fingertips", "--max-iter", "0"],
+        "--max-iter must be an integer from 1 to 100,000, got 0",
+    ),
+    (["run", "fingertips", "--memory", "0"], "--memory must be an integer from 1 to 1,000, got 0"),
+    (
+        ["run", "fingertips", "--horizon", "0"],
+        "--horizon must be an integer from 1 to 1,000, got 0",
+    ),
     (["run", "fingertips", "--relaxation", "-1"], "--relaxation must be positive"),
     (["run", "fingertips", "--model", "relaxed_qp", "--relaxation", "nan"], "--relaxation must"),
     (["run", "trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts"),
     (["run", "trifinger", "--hold-approach", "-1"], "--hold-approach must be a weight > 0, got -1"),
     (["run", "trifinger", "--hold-approach", "0"], "--hold-approach must be a weight > 0"),
     (["run", "fingertips", "--memory", "x"], "argument --memory: invalid int value: 'x'"),
-    (["run", "fingertips", "--horizon", "-2"], "--horizon must be >= 1, got -2"),
+    (
+        ["run", "fingertips", "--horizon", "-2"],
+        "--horizon must be an integer from 1 to 1,000, got -2",
+    ),
     (["run", "fingertips", "--max-iter", "1.5"], "argument --max-iter: invalid int value: '1.5'"),
     (["run", "trifinger", "--object", "random-x"], "--object must be one of"),
     (["run", "fingertips", "--model", "relaxed_qp", "--support-pass", "on"], "--support-pass on"),
@@ -188,9 +197,12 @@ PARSER_ERRORS += [
     (["run", "trifinger", "--object", "/no/such/mesh.stl"], "--object must be an existing mesh"),
     (["run", "fingertips", "--first-seed", "x"], "argument --first-seed: invalid int value"),
     (["run", "fingertips", "--trials", "1.5"], "argument --trials: invalid int value: '1.5'"),
-    (["run", "trifinger", "--object-size", "-1"], "object size must be a positive finite number"),
-    (["run", "trifinger", "--object-scale", "0"], "object scale must be a positive finite number"),
-    (["run", "trifinger", "--object-friction", "-1"], "object friction must be a non-negative"),
+    (["run", "trifinger", "--object-size", "-1"], "--object-size must be a positive finite number"),
+    (
+        ["run", "trifinger", "--object-scale", "0"],
+        "--object-scale must be a positive finite number",
+    ),
+    (["run", "trifinger", "--object-friction", "-1"], "--object-friction must be a non-negative"),
     (["run", "trifinger", "--object-size", "0.1", "--object-scale", "2"], "size and scale both"),
     (["learn-k", "--lr", "nan"], "--lr must be a positive finite number, got nan"),
     (["run", "fingertips", "--trials", "100000000"], "--trials must be at most 1000000"),
@@ -219,9 +231,18 @@ PARSER_ERRORS += [
     (["learn-k", "--residual", "-1"], "--residual must be a non-negative integer, got -1"),
     (["learn-k", "--no-such-option"], "unrecognized arguments: --no-such-option"),
     (["learn-k", "--object", ""], "--object must be one of"),
-    (["run", "fingertips", "--horizon", "100000000"], "--horizon must be at most 1,000, got"),
-    (["run", "fingertips", "--memory", "100000000"], "--memory must be at most 1,000, got"),
-    (["run", "fingertips", "--max-iter", "100000000"], "--max-iter must be at most 100,000"),
+    (
+        ["run", "fingertips", "--horizon", "100000000"],
+        "--horizon must be an integer from 1 to 1,000, got",
+    ),
+    (
+        ["run", "fingertips", "--memory", "100000000"],
+        "--memory must be an integer from 1 to 1,000, got",
+    ),
+    (
+        ["run", "fingertips", "--max-iter", "100000000"],
+        "--max-iter must be an integer from 1 to 100,000",
+    ),
 ]
 
 

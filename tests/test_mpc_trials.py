@@ -43,9 +43,7 @@ CONFIG = TrialConfig(
     object="cube",
     seed=0,
     max_steps=5,
-    max_iter=5,
-    compile=False,
-    dtype="float64",
+    settings=MPCSettings(max_iter=5, compile=False),
     stiffness=STIFFNESS,
 )
 TWO = [CONFIG, dataclasses.replace(CONFIG, seed=1)]
@@ -134,7 +132,7 @@ def test_a_trial_runs_to_its_step_limit_and_records_it(serial):
     assert record.config == CONFIG
     assert record.steps == 5 and not record.success  # 5 steps are too few
     assert all(len(getattr(record, key)) == 5 for key in (*TIMINGS, "iterations"))
-    assert all(0 < n <= CONFIG.max_iter for n in record.iterations)
+    assert all(0 < n <= CONFIG.settings.max_iter for n in record.iterations)
     assert record.pos_err_mm > 0 and record.angle_err_deg > 0
     env = environment("fingertips")
     plant = env.make_plant("cube")
@@ -231,7 +229,14 @@ def test_records_written_before_the_solver_options_still_resume(tmp_path):
     assert seen == [(0, True)]
     # another setting than the legacy one: refused, not overwritten
     with pytest.raises(RecordMismatch, match="memory 8 → 4"):
-        _run([dataclasses.replace(CONFIG, memory=4)], tmp_path)
+        _run(
+            [
+                dataclasses.replace(
+                    CONFIG, settings=MPCSettings(max_iter=5, compile=False, memory=4)
+                )
+            ],
+            tmp_path,
+        )
 
 
 def test_records_of_a_removed_option_resume_only_where_it_was_off(tmp_path):

@@ -18,7 +18,8 @@ from torchcontact import generated
 from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, PAPER_OBJECT_MASS, TRIFINGER_ENV
-from torchcontact.mpc.trials import TrialConfig, object_facts
+from torchcontact.environments.presets import MPCSettings
+from torchcontact.mpc.trials import TrialConfig, config_from_flat, flat_config, object_facts
 from torchcontact.objects import ObjectOptions, is_mesh_file, resolve
 from torchcontact.shapes import MAX_MESH_EXTENT, OBJECT_SIZES, load_object, make_object
 from torchcontact.sim.fingertips import FingertipsEnv
@@ -51,16 +52,16 @@ def mm_mesh(tmp_path) -> Path:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"size": 0.0}, "object size"),
-        ({"size": -0.05}, "object size"),
-        ({"size": math.inf}, "object size"),
-        ({"scale": 0.0}, "object scale"),
-        ({"scale": math.nan}, "object scale"),
-        ({"mass": -0.01}, "object mass"),
-        ({"mass": True}, "object mass"),
-        ({"mass": "0.1"}, "object mass"),
-        ({"friction": -0.1}, "object friction"),
-        ({"friction": math.nan}, "object friction"),
+        ({"size": 0.0}, "^size must be"),
+        ({"size": -0.05}, "^size must be"),
+        ({"size": math.inf}, "^size must be"),
+        ({"scale": 0.0}, "^scale must be"),
+        ({"scale": math.nan}, "^scale must be"),
+        ({"mass": -0.01}, "^mass must be"),
+        ({"mass": True}, "^mass must be"),
+        ({"mass": "0.1"}, "^mass must be"),
+        ({"friction": -0.1}, "^friction must be"),
+        ({"friction": math.nan}, "^friction must be"),
         ({"size": 0.05, "scale": 2.0}, "size and scale"),
     ],
 )
@@ -249,12 +250,15 @@ def test_object_facts_describe_the_plants_object(box_mesh):
 
 def test_a_trial_config_carries_the_object_options():
     base = {"env": "trifinger", "task": "in-hand", "object": "cube", "seed": 0, "max_steps": 1,
-            "max_iter": 1, "compile": False, "dtype": "float64", "stiffness": 0.5}  # fmt: skip
+            "settings": MPCSettings(max_iter=1, compile=False), "stiffness": 0.5}  # fmt: skip
     assert TrialConfig(**base).object_options.is_default
-    config = TrialConfig(**base, object_scale=2.0, object_mass=0.02, object_friction=0.4)
-    assert config.object_options == ObjectOptions(scale=2.0, mass=0.02, friction=0.4)
-    with pytest.raises(ValueError, match="object size and scale"):
-        TrialConfig(**base, object_size=0.1, object_scale=2.0).object_options  # noqa: B018
+    options = ObjectOptions(scale=2.0, mass=0.02, friction=0.4)
+    record = flat_config(TrialConfig(**base, object_options=options))
+    assert (record["object_scale"], record["object_mass"], record["object_friction"]) == (
+        2.0, 0.02, 0.4)  # fmt: skip
+    assert config_from_flat(record).object_options == options
+    with pytest.raises(ValueError, match="size and scale both"):
+        ObjectOptions(size=0.1, scale=2.0)
 
 
 # --- the run command ---------------------------------------------------------------------------
@@ -284,9 +288,6 @@ def test_run_takes_generated_sets_and_object_options():
     assert {c.object for c in configs} == {"random-1000", "random-1001"}
     assert len(configs) == 2 * args.trials
     for config in configs:
-        assert config.object_mass == 0.02
-        assert config.object_size is None and config.object_scale is None
-        assert config.object_friction is None
         assert config.object_options == ObjectOptions(mass=0.02)
 
 
@@ -294,7 +295,7 @@ def test_run_takes_generated_sets_and_object_options():
     ("argv", "message"),
     [
         (["fingertips", "--object-mass", "0.02"], "not for fingertips"),
-        (["trifinger", "--object-mass", "-1"], "object mass"),
+        (["trifinger", "--object-mass", "-1"], "--object-mass must be a positive"),
         (["trifinger", "--object-size", "0.05", "--object-scale", "2"], "size and scale"),
         (["trifinger", "--object", "random:0"], "--object"),
     ],

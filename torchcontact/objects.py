@@ -10,7 +10,7 @@ turns into a body. The same options reach it from the CLI (``--object-size``,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from torchcontact import generated
@@ -48,26 +48,37 @@ class ObjectOptions:
             objects rest as they are made).
     """
 
-    size: float | None = None
-    scale: float | None = None
-    mass: float | None = None
-    friction: float | None = None
-    pose: str = "stable"
+    size: float | None = field(
+        default=None, metadata={"help": "(hands, custom) largest extent [m] to scale it to"}
+    )
+    scale: float | None = field(
+        default=None, metadata={"help": "factor on its own size (0.001 for a mesh file in mm)"}
+    )
+    mass: float | None = field(default=None, metadata={"help": "[kg]; the MPC models it"})
+    friction: float | None = field(default=None, metadata={"help": "its sliding μ"})
+    pose: str = field(
+        default="stable",
+        metadata={
+            "help": "(a mesh file) stable: turned onto its stable face from its centre of "
+            "mass, as generated objects are (default); as-is: as the file has it",
+            "choices": POSES,
+        },
+    )
 
     def __post_init__(self):
         for name in ("size", "scale", "mass"):
             value = getattr(self, name)
             if value is not None and not _positive(value):
-                raise ValueError(f"object {name} must be a positive finite number, got {value!r}")
+                raise ValueError(f"{name} must be a positive finite number, got {value!r}")
         friction = self.friction
         if friction is not None and not (is_finite_number(friction) and friction >= 0):
             raise ValueError(
-                f"object friction must be a non-negative finite number, got {self.friction!r}"
+                f"friction must be a non-negative finite number, got {self.friction!r}"
             )
         if self.size is not None and self.scale is not None:
-            raise ValueError("object size and scale both set its size: give one of them")
+            raise ValueError("size and scale both set the object's size: give one of them")
         if self.pose not in POSES:
-            raise ValueError(f"object pose must be one of {POSES}, got {self.pose!r}")
+            raise ValueError(f"pose must be one of {POSES}, got {self.pose!r}")
 
     @property
     def is_default(self) -> bool:

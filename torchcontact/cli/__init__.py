@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 
 JOBS = {
@@ -39,6 +40,12 @@ expected (its subclasses :class:`~torchcontact.learn.data.DataFormatError` and
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose error is one line, the message and where the options are
     listed (not argparse's usage block before it); exit code 2."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # a list of numbers that opens with a negative one ("-0.5,1.6") is a value, not an
+        # option
+        self._negative_number_matcher = re.compile(r"^-\.?\d[\d.e+-]*(,-?\.?\d[\d.e+-]*)*$")
 
     def error(self, message: str):
         message = " ".join(message.split())

@@ -14,7 +14,6 @@ import argparse
 import dataclasses
 import math
 import os
-from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -22,10 +21,18 @@ from tqdm.auto import tqdm
 
 from torchcontact import generated
 from torchcontact.cli import Parser
+from torchcontact.cli.options import (
+    add_options,
+    given_options,
+    named_as_option,
+    option_name,
+    options_object,
+)
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
-from torchcontact.environments.presets import DEFAULT_PRESET, GAPS, NAMES, SETTING_LIMITS
+from torchcontact.environments.options import CostOptions, RobotOptions
+from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
 from torchcontact.mpc.controller import RESIDUAL_PLANS
@@ -46,7 +53,7 @@ from torchcontact.mpc.trials import (
     run_trials,
     trial_configs,
 )
-from torchcontact.objects import POSES, ObjectOptions, describe_pose, is_mesh_file, mesh_rest
+from torchcontact.objects import ObjectOptions, describe_pose, is_mesh_file, mesh_rest
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.results import (
     locked_folder,
@@ -81,24 +88,6 @@ def build_parser() -> argparse.ArgumentParser:
         f"seeds below {generated.REPORT_SEEDS}); several, comma-separated",
     )
     parser.add_argument(
-        "--object-size", type=float, default=None, help="largest extent [m] to scale it to"
-    )
-    parser.add_argument(
-        "--object-scale",
-        type=float,
-        default=None,
-        help="factor on its own size (0.001 for a mesh file in millimetres)",
-    )
-    parser.add_argument("--object-mass", type=float, default=None, help="[kg]; the MPC models it")
-    parser.add_argument("--object-friction", type=float, default=None, help="sliding μ")
-    parser.add_argument(
-        "--object-pose",
-        choices=POSES,
-        default="stable",
-        help="(a mesh file) stable: turned onto its stable face from its centre of mass, as "
-        "generated objects are (default); as-is: as the file has it",
-    )
-    parser.add_argument(
         "--trials", type=int, default=TRIALS, help="seeds first-seed…first-seed+trials−1"
     )
     parser.add_argument(
@@ -130,34 +119,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
-    )
-    parser.add_argument(
-        "--hold-first",
-        type=int,
-        default=None,
-        help="(hands) for objects that tip before they slide, how many fingertip contacts "
-        "must hold the object before the plan moves it toward its target (0: off); default "
-        "the environment's",
-    )
-    parser.add_argument(
-        "--hold-approach",
-        type=float,
-        default=None,
-        help="(hands, with a hold) the weight of the cost's contact term, relative to its "
-        "own, until the object is held: it draws the tips to the object (1: the paper's "
-        "throughout); default the environment's",
-    )
-    parser.add_argument("--max-iter", type=int, default=None, help="planner iterations per step")
-    parser.add_argument("--memory", type=int, default=None, help="L-BFGS memory")
-    parser.add_argument("--horizon", type=int, default=None, help="T, MPC steps planned ahead")
-    parser.add_argument(
-        "--gaps",
-        choices=GAPS,
-        default=None,
-        help="where the plan's contacts come from over the horizon: frozen (the paper's "
-        "Algorithm 1), propagated along the frozen normal rows, redetect (MuJoCo at the warm "
-        "start's predicted states) or live (the torch geometry at every planned state); all "
-        "but frozen for the paper model only; default the preset's",
     )
     parser.add_argument(
         "--model",
@@ -203,8 +164,6 @@ def build_parser() -> argparse.ArgumentParser:
         "do), auto (part by part for the bowl, cup, mug and torus) or parts (every object "
         "part by part)",
     )
-    parser.add_argument("--no-compile", action="store_true", help="eager objective")
-    parser.add_argument("--dtype", choices=["float32", "float64"], default=None)
     parser.add_argument(
         "--workers", type=int, default=1, help="parallel trial processes (or local Ray CPUs)"
     )
@@ -224,6 +183,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
+    add_options(parser, MPCSettings, title="solver settings, each overriding the --preset's")
+    add_options(parser, ObjectOptions, "object", "the object (hands, custom), default the scene's")
+    add_options(parser, CostOptions, title="the environment's cost terms (hands)")
+    add_options(parser, RobotOptions, title="a user robot (custom), default from its MJCF")
     return parser
 
 
@@ -271,16 +234,13 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(
             f"--gaps {args.gaps} is for the paper model; {args.model} plans with frozen gaps"
         )
+    if not model.moving_gaps:
+        args.gaps = "frozen"
     if args.learned is not None and not args.learned.is_file():
         parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
-    for name in ("trials", "workers", "max_iter", "memory", "horizon", "max_steps"):
+    for name in ("trials", "workers", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    for name, most in SETTING_LIMITS.items():
-        if getattr(args, name) is not None and getattr(args, name) > most:
-            parser.error(
-                f"--{name.replace('_', '-')} must be at most {most:,}, got {getattr(args, name)}"
-            )
     if args.trials > MAX_TRIALS:
         parser.error(f"--trials must be at most {MAX_TRIALS}, got {args.trials}")
     if args.first_seed < 0:
@@ -294,17 +254,17 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error("--robot is required by, and only for, the custom environment")
     if args.tips is not None and not custom:
         parser.error("--tips is for the custom environment")
-    cost_terms = {
-        "--hold-first": args.hold_first is not None,
-        "--hold-approach": args.hold_approach is not None,
-    }
-    given = [option for option, on in cost_terms.items() if on]
+    args.cost_options = options_object(parser, args, CostOptions())
+    given = given_options(args, CostOptions)
     if given and args.cost is not None:
-        parser.error(f"{given[0]} is a term of the environment's cost: drop --cost")
-    if args.hold_first is not None and args.hold_first < 0:
-        parser.error(f"--hold-first must be a number of contacts >= 0, got {args.hold_first}")
-    if args.hold_approach is not None and not 0 < args.hold_approach < math.inf:
-        parser.error(f"--hold-approach must be a weight > 0, got {args.hold_approach}")
+        parser.error(
+            f"{option_name(next(iter(given)))} is a term of the environment's cost: drop --cost"
+        )
+    args.robot_options = options_object(parser, args, RobotOptions())
+    given = given_options(args, RobotOptions)
+    if given and not custom:
+        parser.error(f"{option_name(next(iter(given)))} is for the custom environment")
+    args.object_options = options_object(parser, args, ObjectOptions(), "object")
     if custom and not args.robot.is_file():
         parser.error(f"--robot must be an existing MJCF file, got {str(args.robot)!r}")
 
@@ -316,43 +276,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.tips = None if args.tips is None else tuple(args.tips.split(","))
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
-        env = environment(args.env, args.robot, args.tips)
+        env = environment(args.env, args.robot, args.tips, args.robot_options)
         # a mesh file by its absolute path: one record name however it was typed
         args.pairs = [
             (task, str(Path(obj).resolve()) if is_mesh_file(obj) else obj)
             for task, obj in env.select(args.task, args.object)
         ]
-        args.object_options = ObjectOptions(
-            args.object_size,
-            args.object_scale,
-            args.object_mass,
-            args.object_friction,
-            args.object_pose,
-        )
+        pose = args.object_options.pose
         named = [obj for _, obj in args.pairs if not is_mesh_file(obj)]
-        if args.object_pose != "stable" and named:
-            raise ValueError(
-                f"--object-pose {args.object_pose} is for mesh files, got {named[0]!r}"
-            )
+        if pose != "stable" and named:
+            raise ValueError(f"--object-pose {pose} is for mesh files, got {named[0]!r}")
         if not env.user_meshes and not args.object_options.is_default:
             raise ValueError(f"--object-size/-scale/-mass/-friction/-pose are not for {args.env}")
-        # a cost option: a scene it applies to and a value that fits, before any trial
-        if args.hold_first is not None or args.hold_approach is not None:
+        # a cost option or a robot's: a scene it applies to and a value that fits, before
+        # any trial
+        if not (args.cost_options.is_default and args.robot_options.is_default):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
-            env.cost(plant, args.hold_first, args.hold_approach)
+            env.cost(plant, **dataclasses.asdict(args.cost_options))
     except ValueError as error:
-        parser.error(str(error))
-    overrides = {
-        "max_iter": args.max_iter,
-        "memory": args.memory,
-        "horizon": args.horizon,
-        "gaps": args.gaps or (None if mpc_model(args.model).moving_gaps else "frozen"),
-        "dtype": args.dtype,
-        "compile": False if args.no_compile else None,
-    }
-    args.settings = dataclasses.replace(
-        env.preset(args.preset), **{k: v for k, v in overrides.items() if v is not None}
-    )
+        parser.error(named_as_option(str(error), RobotOptions))
+    args.settings = options_object(parser, args, env.preset(args.preset))
     args.max_steps = args.max_steps or env.criterion.max_steps
     model = mpc_model(args.model)
     if model.relaxation is not None:
@@ -395,7 +338,7 @@ def _load_inputs(args: argparse.Namespace, env) -> None:
 def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
     """The configuration of every selected trial: the options named as the fields of
     :class:`TrialConfig`, the solver settings and the selected pairs and seeds."""
-    set_apart = {"env", "task", "object", "seed", "max_steps", *asdict(args.settings)}
+    set_apart = {"env", "task", "object", "seed", "max_steps", "settings"}
     names = [f.name for f in dataclasses.fields(TrialConfig) if f.name not in set_apart]
     options = {name: getattr(args, name) for name in names if hasattr(args, name)}
     return trial_configs(
@@ -505,10 +448,11 @@ def main(argv: list[str] | None = None) -> int:
         if path is not None:
             writable_file(option, path)
     planner = "" if args.planner == args.env_description.planner else f", planner {args.planner}"
-    hold = configs[0].hold_first
+    terms = configs[0].cost_options
+    hold = terms.hold_first
     hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
-    if configs[0].hold_first and configs[0].hold_approach != 1:
-        hold += f", approached at {configs[0].hold_approach:g}× the contact term"
+    if terms.hold_first and terms.hold_approach != 1:
+        hold += f", approached at {terms.hold_approach:g}× the contact term"
     print(
         f"MPC through the {args.model} model ({_about(args)}); solver "
         f"{args.settings.label}{planner}{hold}"

@@ -7,11 +7,13 @@ with :func:`~torchcontact.environments.custom.from_mjcf` and, to run it by name,
 """
 
 import functools
+from pathlib import Path
 
 from torchcontact.environments.base import Environment
 from torchcontact.environments.custom import from_mjcf
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV
+from torchcontact.environments.options import CostOptions, RobotOptions
 from torchcontact.validation import register
 
 ENVIRONMENTS: dict[str, Environment] = {
@@ -29,22 +31,48 @@ def register_environment(env: Environment) -> Environment:
 
 
 def environment(
-    name: str, robot: str | None = None, tips: tuple[str, ...] | None = None
+    name: str,
+    robot: str | None = None,
+    tips: tuple[str, ...] | None = None,
+    options: RobotOptions | None = None,
 ) -> Environment:
     """The registered environment ``name`` (one of :data:`ENVIRONMENTS`), or with ``robot``
     (an MJCF path) the user robot of :func:`~torchcontact.environments.custom.from_mjcf`
-    with fingertip sites ``tips`` (None: the file's sites named ``*tip``), named ``name``."""
+    with fingertip sites ``tips`` (None: the file's sites named ``*tip``) and ``options``
+    (what is set beyond its file), named ``name``."""
+    options = RobotOptions() if options is None else options
+    if not isinstance(options, RobotOptions):
+        raise TypeError(f"options must be RobotOptions or None, got {type(options).__name__}")
     if robot is not None:
-        return _custom(name, str(robot), None if tips is None else tuple(tips))
+        return _custom(name, str(robot), None if tips is None else tuple(tips), options)
+    if not options.is_default:
+        raise ValueError("options (RobotOptions) are for a user robot: give its robot file too")
     if name not in ENVIRONMENTS:
         raise ValueError(f"env must be one of {sorted(ENVIRONMENTS)}, got {name!r}")
     return ENVIRONMENTS[name]
 
 
 @functools.lru_cache(maxsize=8)
-def _custom(name: str, robot: str, tips: tuple[str, ...] | None) -> Environment:
+def _custom(
+    name: str, robot: str, tips: tuple[str, ...] | None, options: RobotOptions
+) -> Environment:
     """A user robot's environment, built once per process."""
-    return from_mjcf(robot, tips, name=name)
+    env = from_mjcf(robot, tips, name=name, **options.environment_arguments())
+    joints = len(env.layout.joints) - 1  # the object's free joint first
+    if options.initial_joints is not None and len(options.initial_joints) != joints:
+        raise ValueError(
+            f"initial_joints must have {joints} values, one per joint of {Path(robot).name}, "
+            f"got {len(options.initial_joints)}"
+        )
+    return env
 
 
-__all__ = ["ENVIRONMENTS", "Environment", "environment", "from_mjcf", "register_environment"]
+__all__ = [
+    "ENVIRONMENTS",
+    "CostOptions",
+    "Environment",
+    "RobotOptions",
+    "environment",
+    "from_mjcf",
+    "register_environment",
+]

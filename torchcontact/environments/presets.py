@@ -13,7 +13,7 @@ from. ``balanced`` is the default of ``torchcontact run`` and of
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 GAPS = ("frozen", "propagated", "redetect", "live")
 """Where the MPC's rollout takes its contacts from over the horizon, by name.
@@ -48,12 +48,26 @@ class MPCSettings:
             (``"frozen"``: the paper's).
     """
 
-    max_iter: int = 30
-    memory: int = 8
-    horizon: int = 4
-    dtype: str = "float64"
-    compile: bool = True
-    gaps: str = "frozen"
+    max_iter: int = field(default=30, metadata={"help": "planner iterations per control step"})
+    memory: int = field(default=8, metadata={"help": "L-BFGS memory, (s, y) pairs kept"})
+    horizon: int = field(default=4, metadata={"help": "T, model steps planned ahead"})
+    dtype: str = field(
+        default="float64",
+        metadata={"help": "the solve's floating-point type", "choices": ("float32", "float64")},
+    )
+    compile: bool = field(
+        default=True, metadata={"help": "plan eagerly, without torch.compile (slower)"}
+    )
+    gaps: str = field(
+        default="frozen",
+        metadata={
+            "help": "where the plan's contacts come from over the horizon: frozen (the "
+            "paper's Algorithm 1), propagated along the frozen normal rows, redetect (MuJoCo "
+            "at the warm start's predicted states) or live (the torch geometry at every "
+            "planned state); all but frozen for the paper model only",
+            "choices": GAPS,
+        },
+    )
 
     def __post_init__(self):
         for name, most in SETTING_LIMITS.items():
