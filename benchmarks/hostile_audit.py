@@ -1552,7 +1552,7 @@ def learn_cases(files: Files) -> Iterator[Case]:
 
 
 def trial_cases(files: Files) -> Iterator[Case]:
-    from torchcontact.environments import environment
+    from torchcontact.environments import CostOptions, environment
     from torchcontact.environments.presets import MPCSettings
     from torchcontact.mpc.controller import ContactImplicitMPC
     from torchcontact.mpc.trials import run_trials, trial_configs
@@ -1696,7 +1696,11 @@ def trial_cases(files: Files) -> Iterator[Case]:
             lambda: env.select("rotation", "teapot2"),
             ("object",),
         ),
-        ("env.cost(plant, hold_first=-1)", lambda: env.cost(plant, hold_first=-1), ("hold_first",)),
+        (
+            "CostOptions(hold_first=-1)",
+            lambda: env.cost(plant, CostOptions(hold_first=-1)),
+            ("hold_first",),
+        ),
     ):
         yield Case(area, label, call, names)
 

@@ -48,6 +48,7 @@ from studies.ipopt_baseline import (  # noqa: E402
     is_chain,
 )
 from torchcontact.environments import ENVIRONMENTS, environment, tasks  # noqa: E402
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import PAPER  # noqa: E402
 from torchcontact.model import paper_model  # noqa: E402
 from torchcontact.mpc.controller import ContactImplicitMPC  # noqa: E402
@@ -69,7 +70,7 @@ def run_trial(
     plant = env.make_plant(obj)
     preset = dataclasses.replace(env.preset(), compile=compile)
     # the paper's problem on both sides: the hold term is ours, not in its NLP
-    cost = env.cost(plant, hold_first=0)
+    cost = env.cost(plant, CostOptions(hold_first=0))
 
     # the paper model at the environment's K on both sides, as the paper's NLP states it
     def model():  # one each: an MPC casts its model to its own dtype

@@ -47,8 +47,9 @@ from torchcontact import generated
 from torchcontact.digests import content_sha256
 from torchcontact.environments import environment, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
-from torchcontact.environments.options import CostOptions, RobotOptions
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import PAPER, MPCSettings
+from torchcontact.environments.robot_options import RobotOptions
 from torchcontact.model import ContactModel
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
@@ -533,7 +534,7 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
     cost = config.cost
     terms = config.cost_options
     if cost is None:
-        cost = env.cost(plant, **asdict(terms))
+        cost = env.cost(plant, terms)
     elif terms.hold_first or terms.hold_approach != 1:
         term = "hold_first" if terms.hold_first else "hold_approach"
         raise ValueError(f"{term} is a term of the environment's cost, not {cost!r}")

@@ -171,7 +171,7 @@ def _check(mpc: ContactImplicitMPC, n_rows, max_iter, tip_height, formulation: s
     if hold is not None and float(hold.applies):
         raise ValueError(
             "the IPOPT baseline states the paper's cost terms, not the hold term: build "
-            "the MPC with env.cost(plant, hold_first=0)"
+            "the MPC with env.cost(plant, CostOptions(hold_first=0))"
         )
     hand = is_chain(mpc)
     if hand and tip_height is not None:

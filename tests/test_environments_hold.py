@@ -143,10 +143,10 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     env = environment("trifinger")
     tall, wide = HandEnv("trifinger", "water_bottle"), HandEnv("trifinger", "cube")
     assert tips_before_sliding(tall.object) and not tips_before_sliding(wide.object)
-    cost = env.cost(tall, hold_first=3)
+    cost = env.cost(tall, CostOptions(hold_first=3))
     assert isinstance(cost, ManipulationCost) and cost.hold.grip == 3
     # it slides, so a lone push is safe: its hold is there (one graph) but switched off
-    off = env.cost(wide, hold_first=3).hold
+    off = env.cost(wide, CostOptions(hold_first=3)).hold
     off.observe(held_by(NEAR))
     assert float(off.applies) == 0 and float(cost.hold.applies) == 1
     start, target = torch.zeros(2, 4, 3, dtype=F64), torch.ones(3, dtype=F64)
@@ -154,31 +154,35 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     aim, _ = off.aims(start, quats, target, quats[0, 0])
     assert torch.equal(aim, target.expand(2, 3))  # the target, as without a hold
     assert float(off.contact_weight(start)) == 1.0
-    assert env.cost(tall, hold_first=0).hold is None
+    assert env.cost(tall, CostOptions(hold_first=0)).hold is None
     assert env.cost(tall).hold.grip == env.hold_first == 2  # the TriFinger's default
     # the repr keys the compiled graphs: one graph for every held object
-    assert repr(cost.hold) == repr(env.cost(HandEnv("trifinger", "binoculars"), hold_first=3).hold)
+    assert repr(cost.hold) == repr(
+        env.cost(HandEnv("trifinger", "binoculars"), CostOptions(hold_first=3)).hold
+    )
     for value in (-1, 1.5, True):
-        with pytest.raises(ValueError, match="hold_first must be a whole number >= 0"):
-            env.cost(tall, hold_first=value)
+        with pytest.raises(ValueError, match="hold_first must be a number of contacts >= 0"):
+            env.cost(tall, CostOptions(hold_first=value))
     fingertips = environment("fingertips")
     with pytest.raises(ValueError, match="hold_first: the fingertips keep the paper's cost"):
-        fingertips.cost(fingertips.make_plant("cube"), hold_first=2)
+        fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_first=2))
     with pytest.raises(ValueError, match="hold_approach: the fingertips keep the paper's cost"):
-        fingertips.cost(fingertips.make_plant("cube"), hold_approach=4.0)
-    assert fingertips.cost(fingertips.make_plant("cube"), hold_approach=1.0).hold is None
+        fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_approach=4.0))
+    assert (
+        fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_approach=1.0)).hold is None
+    )
 
 
 def test_the_hands_weigh_the_approach_to_a_hold():
     env, tall = environment("trifinger"), HandEnv("trifinger", "water_bottle")
-    hold = env.cost(tall, hold_first=2, hold_approach=3.0).hold
+    hold = env.cost(tall, CostOptions(hold_first=2, hold_approach=3.0)).hold
     assert hold.approach == 3.0
-    assert env.cost(tall, hold_first=2).hold.approach == env.hold_approach
+    assert env.cost(tall, CostOptions(hold_first=2)).hold.approach == env.hold_approach
     with pytest.raises(ValueError, match="hold_approach: it weighs the approach to a hold"):
-        env.cost(tall, hold_first=0, hold_approach=3.0)
+        env.cost(tall, CostOptions(hold_first=0, hold_approach=3.0))
     for value in (0.0, -1.0, math.inf, math.nan):
-        with pytest.raises(ValueError, match="hold_approach must be a positive number"):
-            env.cost(tall, hold_approach=value)
+        with pytest.raises(ValueError, match="hold_approach must be a weight > 0"):
+            env.cost(tall, CostOptions(hold_approach=value))
 
 
 def test_a_trial_plans_with_its_hold():

@@ -11,6 +11,7 @@ import torch
 
 from studies.ipopt_baseline import FORMULATIONS, IpoptMPC, IpoptPlanner, register_ipopt
 from torchcontact.environments import environment
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.functional import cf_velocity
 from torchcontact.model import paper_model
@@ -137,7 +138,7 @@ def test_the_baseline_refuses_what_it_cannot_solve(scene):
     with pytest.raises(ValueError, match="qp"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, hand, "relaxed_qp", settings=EAGER), 60)
     bottle = trifinger.make_plant("water_bottle")  # tips before it slides: held first
-    held = trifinger.cost(bottle, hold_first=2)
+    held = trifinger.cost(bottle, CostOptions(hold_first=2))
     with pytest.raises(ValueError, match="not the hold term"):
         IpoptMPC(ContactImplicitMPC.from_env(trifinger, bottle, settings=EAGER, cost=held), 60)
     paper_cost = trifinger.cost(hand)

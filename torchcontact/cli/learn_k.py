@@ -57,6 +57,7 @@ from torchcontact.cli import Parser
 from torchcontact.cli.split_store import load_split, save_split, split_digest, split_path
 from torchcontact.digests import content_sha256, file_sha256
 from torchcontact.environments import environment
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import MANIFEST, collect, load_objects
 from torchcontact.learn.evaluate import (
@@ -409,7 +410,7 @@ def collection_mpc(scene: Scene, compile: bool = True) -> ContactImplicitMPC:
     settings = MPCSettings(compile=compile)
     if compile:
         quiet_known_inductor_warnings()
-    cost = env.cost(scene.plant, hold_first=0)
+    cost = env.cost(scene.plant, CostOptions(hold_first=0))
     return ContactImplicitMPC.from_env(
         env, scene.plant, paper_model(env.stiffness), settings=settings, cost=cost
     )

@@ -31,8 +31,9 @@ from torchcontact.cli.options import (
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
-from torchcontact.environments.options import CostOptions, RobotOptions
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
+from torchcontact.environments.robot_options import RobotOptions
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
 from torchcontact.mpc.controller import RESIDUAL_PLANS
@@ -292,7 +293,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         # any trial
         if not (args.cost_options.is_default and args.robot_options.is_default):
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
-            env.cost(plant, **dataclasses.asdict(args.cost_options))
+            env.cost(plant, args.cost_options)
     except ValueError as error:
         parser.error(named_as_option(str(error), RobotOptions))
     args.settings = options_object(parser, args, env.preset(args.preset))

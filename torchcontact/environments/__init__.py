@@ -13,7 +13,8 @@ from torchcontact.environments.base import Environment
 from torchcontact.environments.custom import from_mjcf
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, TRIFINGER_ENV
-from torchcontact.environments.options import CostOptions, RobotOptions
+from torchcontact.environments.options import CostOptions
+from torchcontact.environments.robot_options import RobotOptions
 from torchcontact.validation import register
 
 ENVIRONMENTS: dict[str, Environment] = {

@@ -20,6 +20,7 @@ import torch
 from torchcontact import generated
 from torchcontact.environments import tasks
 from torchcontact.environments.costs import Cost
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions, is_mesh_file
@@ -138,13 +139,10 @@ class Environment:
         """|u| per control element and step (rad or m)."""
         raise NotImplementedError
 
-    def cost(
-        self, plant: Plant, hold_first: int | None = None, hold_approach: float | None = None
-    ) -> Cost:
-        """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`);
-        ``hold_first``: the contacts that must hold an object that tips before it slides
-        before the plan moves it; ``hold_approach``: with it, the contact term's weight until
-        the object is held (both: hands only; None: the environment's default)."""
+    def cost(self, plant: Plant, options: CostOptions | None = None) -> Cost:
+        """The MPC cost for ``plant`` (see :class:`~torchcontact.environments.costs.Cost`)
+        with the terms ``options`` sets (:class:`~torchcontact.environments.options.
+        CostOptions`, hands only; None or a None field: the environment's)."""
         raise NotImplementedError
 
     def describe(self, plant: Plant) -> list[str]:

@@ -8,6 +8,7 @@ import torch
 from torchcontact.environments import tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, ObjectModel
 from torchcontact.environments.costs import ManipulationCost
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions
@@ -86,14 +87,10 @@ class FingertipsEnvironment(Environment):
     def control_bound(self, plant: FingertipsEnv) -> float:
         return CONTROL_BOUND
 
-    def cost(
-        self,
-        plant: FingertipsEnv,
-        hold_first: int | None = None,
-        hold_approach: float | None = None,
-    ) -> ManipulationCost:
-        if hold_first or hold_approach not in (None, 1):
-            term = "hold_first" if hold_first else "hold_approach"
+    def cost(self, plant: FingertipsEnv, options: CostOptions | None = None) -> ManipulationCost:
+        options = CostOptions() if options is None else options
+        if options.hold_first or options.hold_approach not in (None, 1):
+            term = "hold_first" if options.hold_first else "hold_approach"
             raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
         return ManipulationCost()
 

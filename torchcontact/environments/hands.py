@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -15,6 +14,7 @@ import torch
 from torchcontact.environments import tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment, ObjectModel
 from torchcontact.environments.costs import Cost, HoldFirst, ManipulationCost
+from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions
@@ -134,25 +134,23 @@ class HandEnvironment(Environment):
     def control_bound(self, plant: HandEnv) -> float:
         return self.model.control_bound
 
-    def cost(
-        self, plant: HandEnv, hold_first: int | None = None, hold_approach: float | None = None
-    ) -> Cost:
-        """The cost of ``plant``'s MPC; ``hold_first``: the contacts that must hold an object
-        that tips before it slides before the plan moves it, instead of
-        :attr:`HandModel.hold_first` (0: none); ``hold_approach``: the contact term's weight
-        while the object is not yet held, instead of :attr:`HandModel.hold_approach` (1:
-        none; another value needs a hold)."""
+    def cost(self, plant: HandEnv, options: CostOptions | None = None) -> Cost:
+        """The cost of ``plant``'s MPC with ``options``' terms, each None taken from the
+        model: the contacts that must hold an object that tips before it slides before the
+        plan moves it (:attr:`HandModel.hold_first`, 0: none) and the contact term's weight
+        while it is not yet held (:attr:`HandModel.hold_approach`, 1: none; another value
+        needs a hold)."""
+        options = CostOptions() if options is None else options
+        if not isinstance(options, CostOptions):
+            raise TypeError(f"options must be CostOptions or None, got {type(options).__name__}")
         cost = self.model.cost
-        hold_first = self.model.hold_first if hold_first is None else hold_first
-        if isinstance(hold_first, bool) or not isinstance(hold_first, int) or hold_first < 0:
-            raise ValueError(f"hold_first must be a whole number >= 0, got {hold_first!r}")
+        hold_first = self.model.hold_first if options.hold_first is None else options.hold_first
         if hold_first and not isinstance(cost, ManipulationCost):
             raise ValueError(f"hold_first: {type(cost).__name__} has no target to hold back")
-        if hold_approach is not None and hold_approach != 1 and not hold_first:
+        if options.hold_approach not in (None, 1) and not hold_first:
             raise ValueError("hold_approach: it weighs the approach to a hold; set hold_first")
-        approach = self.model.hold_approach if hold_approach is None else hold_approach
-        if not (math.isfinite(approach) and approach > 0):
-            raise ValueError(f"hold_approach must be a positive number, got {approach!r}")
+        approach = self.model.hold_approach
+        approach = approach if options.hold_approach is None else options.hold_approach
         # every object gets the terms, switched off by an input where the object slides before
         # it tips, so all objects share one compiled graph
         tips = tips_before_sliding(plant.object)
