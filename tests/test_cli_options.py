@@ -99,6 +99,10 @@ def test_robot_options_reach_the_environment_and_its_task():
     assert region.target_x == (0.03, 0.04) and region.target_y != (0.03, 0.04)
     _, target = env.sample(plant, "reposition", 0)
     assert 0.03 <= target[0] - region.placement[0] <= 0.04
+    robot, task = env.describe(plant)  # the run's header says what was given
+    assert "initial joints (-0.5, 1.6, 1.1) from the initial joints given" in robot
+    assert "control bound 0.05 per step (given)" in robot
+    assert "x +30 to +40 mm (given)" in task and task.endswith("the rest from the tips' reach")
 
 
 def test_a_record_holds_the_parts_flat_and_reads_back_the_same_config():

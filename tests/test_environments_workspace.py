@@ -116,7 +116,7 @@ def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults
     mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
     config = TrialConfig(
         env="finger", task="reposition", object="cube", seed=seed, max_steps=150,
-        **vars(settings), stiffness=env.default_stiffness,
+        settings=settings, stiffness=env.default_stiffness,
     )  # fmt: skip
     record = run_trial(config, env, plant, mpc)
     assert record.success, record.pos_err_mm
@@ -137,7 +137,7 @@ def test_the_gripper_lifts_its_cube_to_a_derived_target_and_holds_it_with_the_de
     mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
     config = TrialConfig(
         env="gripper", task="reposition", object="cube", seed=seed, max_steps=120,
-        **vars(settings), stiffness=env.default_stiffness,
+        settings=settings, stiffness=env.default_stiffness,
     )  # fmt: skip
     record = run_trial(config, env, plant, mpc)
     # success holds the cube within 2 cm of a target 2-6 cm up for 20 steps: it is not dropped

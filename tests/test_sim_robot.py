@@ -136,7 +136,7 @@ def test_the_example_gripper_is_read_from_its_file():
     assert robot.joint_names == ("left_close", "left_lift", "right_close", "right_lift")
     assert robot.joint_types == ("slide",) * 4 and robot.tips == ("left_tip", "right_tip")
     assert robot.joint_ranges.tolist() == [[0.0, 0.07], [0.0, 0.12]] * 2
-    assert all(a.kind == "position" and 1 <= a.kp <= 10 for a in robot.actuators)
+    assert all(a.kind == "position" and a.kp == 100 for a in robot.actuators)
     assert [a.joint for a in robot.actuators] == list(robot.joint_names)
     low, high = robot.joint_ranges.T.numpy()
     joints = np.random.default_rng(0).uniform(low, high, (32, 4))

@@ -77,7 +77,7 @@ class PoseTask:
             for name in ("placement", "target_x", "target_y", "lift")
             if getattr(self, name) is not None
         }
-        return dataclasses.replace(derived, **given)
+        return dataclasses.replace(derived, **given, given=tuple(given))
 
     def __call__(self, plant: HandEnv, task: str, seed: int):
         """Initial and target poses ``(7,), (7,)`` of trial ``seed`` on ``plant``."""
@@ -162,7 +162,11 @@ def from_mjcf(
     if initial_joints is None:
         initial_joints = derived.initial_joints
     else:
-        derived = dataclasses.replace(derived, initial_source="the initial_joints given")
+        derived = dataclasses.replace(
+            derived,
+            initial_joints=tuple(float(x) for x in initial_joints),
+            initial_source="the initial joints given",
+        )
     if control_bound is None:
         control_bound = derived.control_bound
     elif not (is_finite_number(control_bound) and control_bound > 0):

@@ -121,21 +121,30 @@ class Reach:
             (low, high); (0, 0) where no tip can push the object that way.
         lift: the target's rise above resting (low, high) [m]; (0, 0) where no two tips can
             squeeze the object from opposite sides and rise.
+        given: the fields above that were given rather than derived.
     """
 
     placement: tuple[float, float]
     target_x: tuple[float, float]
     target_y: tuple[float, float]
     lift: tuple[float, float]
+    given: tuple[str, ...] = ()
 
     def describe(self) -> str:
         def span(values):
             return f"{1e3 * values[0]:+.0f} to {1e3 * values[1]:+.0f} mm"
 
+        def given(name):
+            return " (given)" if name in self.given else ""
+
         x, y = self.placement
+        derived = len(self.given) < 4
         return (
-            f"object placed at ({1e3 * x:.0f}, {1e3 * y:.0f}) mm; targets x {span(self.target_x)}, "
-            f"y {span(self.target_y)}, lift {span(self.lift)}, from the tips' reach"
+            f"object placed at ({1e3 * x:.0f}, {1e3 * y:.0f}) mm{given('placement')}; targets "
+            f"x {span(self.target_x)}{given('target_x')}, y {span(self.target_y)}"
+            f"{given('target_y')}, lift {span(self.lift)}{given('lift')}"
+            + (", the rest from the tips' reach" if self.given and derived else "")
+            + ("" if self.given else ", from the tips' reach")
         )
 
 
