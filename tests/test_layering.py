@@ -277,7 +277,6 @@ def _registries() -> dict[str, set[str]]:
         "torchcontact.environments.costs": set(costs.COSTS),
         "torchcontact.environments": set(ENVIRONMENTS),
         "torchcontact.mpc.planners": set(planners.PLANNERS),
-        "torchcontact.mpc.hybrid": set(planners.PLANNERS),
         "torchcontact.mpc.models": {*models.MPC_MODELS, *models.LEGACY_MODELS},
     }
 

@@ -11,8 +11,7 @@ from torchcontact.cli import main
 from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.hybrid import Hybrid
-from torchcontact.mpc.planners import LBFGS, Objective, planner
+from torchcontact.mpc.planners import LBFGS, Hybrid, Objective, planner
 from torchcontact.mpc.trials import trial_configs
 
 F64 = torch.float64
