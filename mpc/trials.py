@@ -29,6 +29,7 @@ import dataclasses
 import functools
 import hashlib
 import importlib.metadata
+import importlib.util
 import json
 import math
 import os
@@ -45,7 +46,7 @@ from tqdm.auto import tqdm
 
 from torchcontact import generated
 from torchcontact.digests import content_sha256
-from torchcontact.environments import environment, tasks
+from torchcontact.environments import environment, import_environments, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
 from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import PAPER, MPCSettings
@@ -104,6 +105,7 @@ LEGACY_DEFAULTS = {
     "hold_first": 0,
     "hold_approach": 1.0,
     "residual_plan": "fixed",
+    "env_module": None,
     **dict.fromkeys(
         ("initial_joints", "control_bound", "placement", "target_x", "target_y", "lift")
     ),
@@ -125,7 +127,12 @@ docs/experiments.md), with the value that left them off: a record holding anothe
 made by a removed option and matches no trial of this release."""
 
 
-INPUT_FILES = {"object_sha256": "object", "learned_sha256": "learned", "robot_sha256": "robot"}
+INPUT_FILES = {
+    "object_sha256": "object",
+    "learned_sha256": "learned",
+    "robot_sha256": "robot",
+    "env_module_sha256": "env_module",
+}
 """Keys of a record's ``inputs`` holding the SHA-256 of the file a configuration field names
 (None where it names none: a built-in object, no learned model, a built-in robot)."""
 
@@ -200,7 +207,10 @@ class TrialConfig:
     """What defines a trial's outcome (stored with its record, checked on resume).
 
     Attributes:
-        env: the environment's registered name (``"custom"`` with ``robot``).
+        env: the environment's registered name (``"custom"`` with ``robot``); env_module:
+            the module (or ``.py`` file) that registers it, where it is not built in
+            (:func:`~torchcontact.environments.import_environments`, imported by every
+            process that runs the trial).
         task, object: the task and the object (a name or a mesh path); seed: the trial's.
         max_steps: control steps at most.
         settings: the solver settings.
@@ -240,6 +250,7 @@ class TrialConfig:
     robot: str | None = None
     tips: tuple[str, ...] | None = None
     robot_options: RobotOptions = RobotOptions()
+    env_module: str | None = None
     cost: str | None = None
     cost_options: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
     object_options: ObjectOptions = ObjectOptions()
@@ -382,6 +393,8 @@ def trial_configs(
     (or, where it ships none, the paper model at its default K) unless ``options`` (other
     :class:`TrialConfig` fields) say otherwise."""
     _check_parts(options)
+    if options.get("env_module") is not None:
+        import_environments(options["env_module"])
     robot = options.get("robot")
     description = environment(env, robot, options.get("tips"), options.get("robot_options"))
     settings = _settings(description, settings)
@@ -508,6 +521,8 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
         path = getattr(config, field)
         if field == "learned":
             path = resolve_learned(path, config.env)
+        if field == "env_module" and path is not None and not path.endswith(".py"):
+            path = importlib.util.find_spec(path).origin  # imported already: it registered env
         if path is None or (field == "object" and not is_mesh_file(path)):
             inputs[key] = None
             continue
@@ -528,6 +543,8 @@ def trial_model(config: TrialConfig, h: float) -> ContactModel:
 
 def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplicitMPC]:
     """The environment, the plant and the MPC of ``config``."""
+    if config.env_module is not None:
+        import_environments(config.env_module)
     env = environment(config.env, config.robot, config.tips, config.robot_options)
     plant = env.make_plant(config.object, config.collision, config.object_options)
     model = trial_model(config, env.h(plant))

@@ -28,7 +28,7 @@ from torchcontact.cli.options import (
     option_name,
     options_object,
 )
-from torchcontact.environments import ENVIRONMENTS, environment
+from torchcontact.environments import ENVIRONMENTS, environment, import_environments
 from torchcontact.environments.base import BENCHMARK_COLLISION
 from torchcontact.environments.costs import COSTS
 from torchcontact.environments.options import CostOptions
@@ -72,6 +72,9 @@ SUMMARY_FILES = ("summary.json", "trials.csv", "results.png")
 PAPER_STIFFNESS = "paper"
 """``--stiffness paper``: the environment's K from the paper."""
 
+IMPORT = "--import"
+"""``torchcontact run NAME --import MODULE``: an environment a user's module registers."""
+
 CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
 
@@ -103,6 +106,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--tips", default=None, help="(custom) fingertip site names, comma-separated"
+    )
+    parser.add_argument(
+        IMPORT,
+        dest="env_module",
+        default=None,
+        metavar="MODULE",
+        help="a module or .py file that registers environments (register_environment), to "
+        "run one by its name",
     )
     parser.add_argument(
         "--preset",
@@ -270,9 +281,24 @@ def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) ->
         parser.error(f"--robot must be an existing MJCF file, got {str(args.robot)!r}")
 
 
+def _import_named_module(argv: list[str] | None) -> None:
+    """Import the module of ``--import`` before the parser lists the environments."""
+    found = argparse.ArgumentParser(add_help=False)
+    found.add_argument(IMPORT, dest="env_module", default=None)
+    module = found.parse_known_args(argv)[0].env_module
+    if module is not None:
+        try:
+            import_environments(module)
+        except ValueError as error:
+            Parser(prog="torchcontact run").error(f"{IMPORT}: {error}")
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    _import_named_module(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.env_module is not None and args.env_module.endswith(".py"):
+        args.env_module = str(Path(args.env_module).resolve())  # the same file for every worker
     _check_options(parser, args)
     args.tips = None if args.tips is None else tuple(args.tips.split(","))
     args.robot = None if args.robot is None else str(args.robot.resolve())

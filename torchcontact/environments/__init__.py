@@ -3,10 +3,15 @@ presets, one registered instance per environment (``fingertips``, ``trifinger``,
 
 ``environment("trifinger")`` returns the registered description; a user's robot becomes one
 with :func:`~torchcontact.environments.custom.from_mjcf` and, to run it by name,
-:func:`register_environment`.
+:func:`register_environment` (from the command line: ``torchcontact run NAME --import
+MODULE``, :func:`import_environments`).
 """
 
 import functools
+import hashlib
+import importlib
+import importlib.util
+import sys
 from pathlib import Path
 
 from torchcontact.environments.base import Environment
@@ -29,6 +34,44 @@ def register_environment(env: Environment) -> Environment:
         raise ValueError(f"env must be an Environment, got {type(env).__name__}")
     register(ENVIRONMENTS, env.name, env, "environment", lambda e: True)
     return env
+
+
+def import_environments(module: str) -> list[str]:
+    """Import ``module`` (a dotted module name, or the path of a ``.py`` file) for the
+    environments it registers (:func:`register_environment`); returns the names registered
+    by it (none when it was imported before). ``ValueError`` naming ``module`` when it cannot
+    be imported, with the error it raised."""
+    if not isinstance(module, str) or not module:
+        raise ValueError(f"module must be a module name or a .py file, got {module!r}")
+    before = set(ENVIRONMENTS)
+    try:
+        if module.endswith(".py"):
+            _import_file(Path(module).resolve())
+        else:
+            importlib.import_module(module)
+    except Exception as error:  # whatever the user's module raises, named in one line
+        raise ValueError(
+            f"module {module!r} must import, got {type(error).__name__}: {error}"
+        ) from None
+    return sorted(set(ENVIRONMENTS) - before)
+
+
+def _import_file(path: Path) -> None:
+    """Execute the Python file ``path`` once per process, as a module named after its path."""
+    if not path.is_file():
+        raise FileNotFoundError(f"no file {str(path)!r}")
+    digest = hashlib.sha256(str(path).encode()).hexdigest()[:8]
+    name = f"torchcontact_user_{path.stem}_{digest}"
+    if name in sys.modules:
+        return
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
 
 
 def environment(
@@ -70,6 +113,7 @@ def _custom(
 
 __all__ = [
     "ENVIRONMENTS",
+    "import_environments",
     "CostOptions",
     "Environment",
     "RobotOptions",
