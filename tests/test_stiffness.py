@@ -260,3 +260,11 @@ def test_parameterization_factory():
         parameterization(-2.0)
     with pytest.raises(ValueError, match="damping"):
         parameterization(-2.0, name="damping")
+
+
+def test_relative_exposes_its_ratio_as_constant_does_its_value():
+    ratio = Relative(0.25)
+    assert ratio.value == pytest.approx(0.25) and isinstance(ratio.value, float)
+    with torch.no_grad():
+        ratio.log_ratio.add_(torch.log(torch.tensor(2.0)))
+    assert ratio.value == pytest.approx(0.5)

@@ -160,6 +160,11 @@ class Relative(Parameterization):
         super().__init__()
         _register_log(self, "log_ratio", _log_positive("ratio", ratio), learnable)
 
+    @property
+    def value(self) -> float:
+        """The ratio D/K, as :attr:`Constant.value` is its value."""
+        return float(self.log_ratio.detach().exp())
+
     def forward(self, contacts, facets, q=None, stiffness=None) -> torch.Tensor:
         if stiffness is None:
             raise ValueError("Relative damping needs the stiffness K it scales")
