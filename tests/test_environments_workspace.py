@@ -1,5 +1,6 @@
 """What a robot's MJCF says about its environment: initial joints, control bound, reach."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -104,42 +105,33 @@ def test_a_bad_control_bound_is_refused():
         from_mjcf(FINGER, control_bound=-1.0)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults(seed):
-    from torchcontact.environments.presets import MPCSettings
+def _closed_loop(robot: Path, name: str, seed: int, max_steps: int):
+    """The record of the robot's default trial ``seed`` with the defaults, planned eagerly."""
     from torchcontact.mpc.controller import ContactImplicitMPC
     from torchcontact.mpc.trials import TrialConfig, run_trial
 
-    env = from_mjcf(FINGER, name="finger")
+    env = from_mjcf(robot, name=name)
     plant = env.make_plant("cube")
-    settings = MPCSettings(**{**vars(env.preset()), "compile": False})
+    settings = dataclasses.replace(env.preset(), compile=False)
     mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
     config = TrialConfig(
-        env="finger", task="reposition", object="cube", seed=seed, max_steps=150,
+        env=name, task="reposition", object="cube", seed=seed, max_steps=max_steps,
         settings=settings, stiffness=env.default_stiffness,
     )  # fmt: skip
-    record = run_trial(config, env, plant, mpc)
+    return env, plant, run_trial(config, env, plant, mpc)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_planar_finger_pushes_its_cube_to_a_derived_target_with_the_defaults(seed):
+    _, _, record = _closed_loop(FINGER, "finger", seed, max_steps=150)
     assert record.success, record.pos_err_mm
     pushed = np.linalg.norm(np.subtract(record.final_pose[:2], record.initial_pose[:2]))
     assert pushed > 0.02  # a real push, not a target met where the cube stood
 
 
-@pytest.mark.parametrize("seed", [0])
-def test_the_gripper_lifts_its_cube_to_a_derived_target_and_holds_it_with_the_defaults(seed):
-    from torchcontact.environments.presets import MPCSettings
-    from torchcontact.mpc.controller import ContactImplicitMPC
-    from torchcontact.mpc.trials import TrialConfig, run_trial
-
-    env = from_mjcf(GRIPPER, name="gripper")
-    plant = env.make_plant("cube")
+def test_the_gripper_lifts_its_cube_to_a_derived_target_and_holds_it_with_the_defaults():
+    env, plant, record = _closed_loop(GRIPPER, "gripper", 0, max_steps=120)
     assert env._sample.region(plant).lift[0] > 0.02  # the derived task is a lift
-    settings = MPCSettings(**{**vars(env.preset()), "compile": False})
-    mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
-    config = TrialConfig(
-        env="gripper", task="reposition", object="cube", seed=seed, max_steps=120,
-        settings=settings, stiffness=env.default_stiffness,
-    )  # fmt: skip
-    record = run_trial(config, env, plant, mpc)
     # success holds the cube within 2 cm of a target 2-6 cm up for 20 steps: it is not dropped
     assert record.success, record.pos_err_mm
     assert record.final_pose[2] - record.initial_pose[2] > 0.02
