@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -64,6 +65,7 @@ class BackgroundCompile:
         self._ready: set[str] = set()
         self._child: multiprocessing.process.BaseProcess | None = None
         self._child_key = ""
+        self._started = 0.0
 
     def ready(self, key: str, compile: Callable[[], object]) -> bool:
         """Whether the graph ``key`` may run now (see the class docstring)."""
@@ -83,13 +85,26 @@ class BackgroundCompile:
             target=_compile_and_mark, args=(compile, marks / key), name=f"compile-{key[:8]}"
         )
         self._child.start()
-        self._child_key = key
+        self._child_key, self._started = key, time.monotonic()
         return False
 
     @property
     def compiling(self) -> bool:
         """Whether a child is compiling."""
         return self._child is not None and self._child.is_alive()
+
+    @property
+    def elapsed(self) -> float:
+        """Seconds since the running child started (0 without one)."""
+        return time.monotonic() - self._started if self.compiling else 0.0
+
+    def cancel(self) -> None:
+        """Stop the running child, if any, leaving its graph unmarked (compiled again by the
+        next run that needs it)."""
+        if self._child is not None:
+            self._child.terminate()
+            self._child.join()
+            self._child = None
 
     def wait(self) -> None:
         """Block until the child, if any, has finished (before other processes load its graph

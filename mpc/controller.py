@@ -312,9 +312,20 @@ class ContactImplicitMPC:
         return self._background is not None and self._background.compiling
 
     def wait_for_compile(self) -> None:
-        """Block until a background compile (``background_compile``) has finished."""
+        """Block until a background compile (``background_compile``) has finished; Ctrl-C
+        stops it (its graph is compiled again when next needed) and raises
+        ``KeyboardInterrupt``."""
         if self._background is not None:
-            self._background.wait()
+            try:
+                self._background.wait()
+            except KeyboardInterrupt:
+                self._background.cancel()
+                raise
+
+    @property
+    def compile_elapsed(self) -> float:
+        """Seconds the running background compile has taken so far (0 without one)."""
+        return 0.0 if self._background is None else self._background.elapsed
 
     def freeze(self, q: torch.Tensor, contacts: Contacts, compiled: bool | None = None):
         """The model's step frozen at the contacts detected at ``q (nq,)``; its inner

@@ -1056,8 +1056,15 @@ def finish_compiling() -> None:
     cached for the next run (the process would wait for it at exit anyway, silently)."""
     mpc = _CACHE.get("mpc")
     if mpc is not None and mpc.compiling:
-        tqdm.write("the trials are done; finishing the MPC's compile for the next runs")
-        mpc.wait_for_compile()
+        tqdm.write(
+            f"the trials are done and kept; finishing the MPC's compile for the next runs "
+            f"({mpc.compile_elapsed:.0f} s in so far; Ctrl-C skips it, the next run then "
+            "compiles again)"
+        )
+        try:
+            mpc.wait_for_compile()
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt("compile skipped; the trials' records are kept") from None
 
 
 def _batches(indices, jobs: list[_Job]) -> list[list[int]]:

@@ -37,6 +37,16 @@ def test_an_unmarked_graph_compiles_in_a_child_and_is_marked(marks):
     assert compiler.ready("k", _never)
 
 
+def test_a_cancelled_child_leaves_its_graph_unmarked(marks):
+    compiler = BackgroundCompile()
+    assert not compiler.ready("k", functools.partial(time.sleep, 60.0))
+    time.sleep(0.2)
+    assert compiler.compiling and compiler.elapsed > 0
+    compiler.cancel()
+    assert not compiler.compiling and compiler.elapsed == 0.0
+    assert not (marks / "k").exists()
+
+
 def test_a_failing_child_is_an_error(marks):
     compiler = BackgroundCompile()
     assert not compiler.ready("k", functools.partial(operator.truediv, 1, 0))
