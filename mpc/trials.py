@@ -678,10 +678,15 @@ class _Job:
 _CACHE: dict = {}  # per process: the environment, plant and MPC of the last trial's setup
 
 
-def _setup_key(config: TrialConfig) -> tuple:
-    """What the plant and MPC of a trial depend on: everything but the task and the seed."""
-    flat = flat_config(config)
-    return tuple(v for k, v in flat.items() if k not in ("task", "seed", "max_steps"))
+def _setup_key(config: TrialConfig, objects: bool = True) -> tuple:
+    """What the plant and MPC of a trial depend on: everything but the task and the seed
+    (``objects`` False: and the object, which an environment's compiled graph is not
+    specialised to)."""
+    apart = {"task", "seed", "max_steps"}
+    if not objects:
+        prefix = RECORD_PARTS["object_options"][1]
+        apart |= {"object", *(f"{prefix}_{f.name}" for f in fields(ObjectOptions))}
+    return tuple(v for k, v in flat_config(config).items() if k not in apart)
 
 
 def _run_job(job: _Job) -> TrialRecord:
@@ -692,11 +697,17 @@ def _run_job(job: _Job) -> TrialRecord:
     if _CACHE.get("key") != key:
         if "mpc" in _CACHE:
             _CACHE["mpc"].wait_for_compile()  # its child must finish before the reset below
+        graph = _setup_key(job.config, objects=False)
+        if _CACHE.get("graph") != graph:
+            # Other settings bring other graphs: drop the previous ones, or dynamo reaches its
+            # recompile limit after a few and silently runs eager from then on. Another object
+            # of the same settings runs the graph it has (contacts padded to the plant's
+            # capacity, the cost's per-object terms as inputs): re-tracing it would take tens
+            # of seconds per object.
+            torch._dynamo.reset()
         _CACHE.clear()
-        # A new object brings new tensor shapes: drop the previous compiled graphs, or dynamo
-        # reaches its recompile limit after a few objects and silently runs eager from then on.
-        torch._dynamo.reset()
         _CACHE.update(zip(("env", "plant", "mpc"), build_trial(job.config), strict=True), key=key)
+        _CACHE["graph"] = graph
         if job.config.settings.compile:
             quiet_known_inductor_warnings()
     frames = [] if job.video is not None else None

@@ -175,3 +175,22 @@ def test_objects_that_tip_and_objects_that_slide_share_one_graph_key():
     assert repr(cube) == repr(stick)
     assert (float(cube.hold.applies), float(stick.hold.applies)) == (0.0, 1.0)
     assert (float(cube.tilt_applies), float(stick.tilt_applies)) == (0.0, 1.0)
+
+
+def test_a_worker_drops_its_graphs_for_other_settings_not_for_another_object(monkeypatch):
+    """Another object runs the graph the worker has (re-tracing it costs tens of seconds an
+    object); other settings bring other graphs, so the old ones are dropped."""
+    from torchcontact.mpc import trials
+
+    resets = []
+    monkeypatch.setattr(torch._dynamo, "reset", lambda: resets.append(1))
+    monkeypatch.setattr(trials, "_CACHE", {})
+    fast = MPCSettings(max_iter=2, compile=False)
+    pairs = [("in-hand", "cube"), ("in-hand", "random-401")]
+    cube, other = trials.trial_configs("trifinger", pairs, [0], fast, max_steps=1)
+    (deeper,) = trials.trial_configs(
+        "trifinger", pairs[:1], [0], MPCSettings(max_iter=2, compile=False, horizon=2), max_steps=1
+    )
+    for config, expected in ((cube, 1), (other, 1), (deeper, 2)):
+        trials._run_job(trials._Job(config, None, None, trials.trial_inputs(config)))
+        assert len(resets) == expected, config.object
