@@ -68,7 +68,8 @@ def main() -> None:
         print(
             f"{job}: empty cache {cold['wall_s']:.1f} s ({cold['eager_steps']} steps eager), "
             f"warm {warm['wall_s']:.1f} s ({warm['eager_steps']} eager), {ratio:.1f}×; median "
-            f"compiled solve {cold['solve_ms_median']:.1f} / {warm['solve_ms_median']:.1f} ms"
+            f"solve {cold['solve_ms_median']:.1f} / {warm['solve_ms_median']:.1f} ms (of the "
+            "compiled steps, or of all where none was compiled)"
         )
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "first_run.json"
