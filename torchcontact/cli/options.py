@@ -32,16 +32,13 @@ def add_options(
     cls: type,
     prefix: str = "",
     title: str | None = None,
-    skip: tuple[str, ...] = (),
 ) -> None:
-    """Add an option to ``parser`` for each field of dataclass ``cls`` but ``skip``, in a group
-    titled ``title`` (default the first line of the class's docstring)."""
+    """Add an option to ``parser`` for each field of dataclass ``cls``, in a group titled
+    ``title`` (default the first line of the class's docstring)."""
     title = title or (cls.__doc__ or cls.__name__).strip().splitlines()[0]
     group = parser.add_argument_group(title)
     hints = typing.get_type_hints(cls)
     for field in dataclasses.fields(cls):
-        if field.name in skip:
-            continue
         meta = field.metadata
         flag, dest = option_name(field.name, prefix), _destination(field.name, prefix)
         if hints[field.name] is bool:
