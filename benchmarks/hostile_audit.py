@@ -1551,6 +1551,22 @@ def learn_cases(files: Files) -> Iterator[Case]:
 # --- trial API and from_env ----------------------------------------------------------------
 
 
+def _trial_call(args: tuple, kwargs: dict):
+    """A call of ``trial_configs(*args, **kwargs)``, its ``model_options`` given as a dict,
+    ``model``, made into :class:`ModelOptions` in the call, where that part refuses its values."""
+
+    def call():
+        from torchcontact.mpc.model_options import ModelOptions
+        from torchcontact.mpc.trials import trial_configs
+
+        options = dict(kwargs)
+        if "model" in options:
+            options["model_options"] = ModelOptions(**options.pop("model"))
+        return trial_configs(*args, **options)
+
+    return call
+
+
 def trial_cases(files: Files) -> Iterator[Case]:
     from torchcontact.environments import CostOptions, environment
     from torchcontact.environments.presets import MPCSettings
@@ -1571,14 +1587,19 @@ def trial_cases(files: Files) -> Iterator[Case]:
         ("max_steps=-1", ("fingertips", pair), {"max_steps": -1}, ("max_steps",)),
         ("max_steps=2.5", ("fingertips", pair), {"max_steps": 2.5}, ("max_steps",)),
         ("max_steps='3'", ("fingertips", pair), {"max_steps": "3"}, ("max_steps",)),
-        ("stiffness=-1", ("fingertips", pair), {"stiffness": -1.0}, ("stiffness",)),
-        ("stiffness=0", ("fingertips", pair), {"stiffness": 0.0}, ("stiffness",)),
-        ("stiffness=nan", ("fingertips", pair), {"stiffness": math.nan}, ("stiffness",)),
-        ("stiffness=1e30", ("fingertips", pair), {"stiffness": 1e30}, ("stiffness",)),
-        ("stiffness='3'", ("fingertips", pair), {"stiffness": "3"}, ("stiffness",)),
-        ("relaxation=0", ("fingertips", pair), {"relaxation": 0.0}, ("relaxation",)),
-        ("relaxation=nan", ("fingertips", pair), {"relaxation": math.nan}, ("relaxation",)),
-        ("model='qp2'", ("fingertips", pair), {"model": "qp2"}, ("model",)),
+        ("stiffness=-1", ("fingertips", pair), {"model": {"stiffness": -1.0}}, ("stiffness",)),
+        ("stiffness=0", ("fingertips", pair), {"model": {"stiffness": 0.0}}, ("stiffness",)),
+        ("stiffness=nan", ("fingertips", pair), {"model": {"stiffness": math.nan}}, ("stiffness",)),
+        ("stiffness=1e30", ("fingertips", pair), {"model": {"stiffness": 1e30}}, ("stiffness",)),
+        ("stiffness='3'", ("fingertips", pair), {"model": {"stiffness": "3"}}, ("stiffness",)),
+        ("relaxation=0", ("fingertips", pair), {"model": {"relaxation": 0.0}}, ("relaxation",)),
+        (
+            "relaxation=nan",
+            ("fingertips", pair),
+            {"model": {"relaxation": math.nan}},
+            ("relaxation",),
+        ),
+        ("model='qp2'", ("fingertips", pair), {"model": {"model": "qp2"}}, ("model",)),
         ("settings=3", ("fingertips", pair), {"settings": 3}, ("settings",)),
         ("settings='quick'", ("fingertips", pair), {"settings": "quick"}, ("preset", "settings")),
         ("seeds=[-1]", ("fingertips", pair, [-1]), {}, ("seeds",)),
@@ -1586,13 +1607,16 @@ def trial_cases(files: Files) -> Iterator[Case]:
         ("seeds='0'", ("fingertips", pair, "0"), {}, ("seeds",)),
         ("seeds=range(10**8)", ("fingertips", pair, range(10**8)), {}, ("seeds", "trials")),
         ("stifness=3", ("fingertips", pair), {"stifness": 3}, ("stifness", "options")),
-        ("learned='/no/such.pt'", ("fingertips", pair), {"learned": "/no/such.pt"}, ("learned",)),
+        (
+            "learned='/no/such.pt'",
+            ("fingertips", pair),
+            {"model": {"learned": "/no/such.pt"}},
+            ("learned",),
+        ),
         ("gaps='x'", ("fingertips", pair), {"gaps": "x"}, ("gaps",)),
     ):
         args = args if len(args) == 3 else (*args, [0])
-        yield Case(
-            area, f"trial_configs({label})", lambda a=args, k=kwargs: trial_configs(*a, **k), names
-        )
+        yield Case(area, f"trial_configs({label})", _trial_call(args, kwargs), names)
     yield Case(
         area, "trial_configs(valid)", lambda: trial_configs("fingertips", pair, [0]), control=True
     )
@@ -1719,7 +1743,7 @@ def checkpoint_cases(files: Files) -> Iterator[Case]:
         save_checkpoint,
     )
     from torchcontact.model import ComplementarityFree
-    from torchcontact.mpc.trials import load_learned
+    from torchcontact.mpc.models import load_learned
     from torchcontact.shipped import check_shipped, resolve_learned, shipped_path
 
     area = "checkpoints"

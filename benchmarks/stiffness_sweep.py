@@ -23,6 +23,7 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from torchcontact.mpc.model_options import ModelOptions  # noqa: E402
 from torchcontact.mpc.report import SUMMARY_KEYS, summarize  # noqa: E402
 from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
 from torchcontact.results import save_figure, write_csv, write_json  # noqa: E402
@@ -38,7 +39,7 @@ def run_one(stiffness: float, args: argparse.Namespace) -> dict:
         [("rotation", "bunny")],
         range(args.trials),
         max_steps=args.max_steps,
-        stiffness=stiffness,
+        model_options=ModelOptions(stiffness=stiffness),
     )
     records = run_trials(configs, workers=args.workers, out=args.out / f"K_{stiffness:g}")
     summary = summarize([record.to_dict() for record in records])

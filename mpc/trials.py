@@ -54,13 +54,8 @@ from torchcontact.environments.robot_options import RobotOptions
 from torchcontact.model import ContactModel
 from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
-from torchcontact.mpc.models import (
-    DEFAULT_MODEL,
-    LEGACY_MODELS,
-    default_model_fields,
-    load_learned,
-    mpc_model,
-)
+from torchcontact.mpc.model_options import ModelOptions
+from torchcontact.mpc.models import DEFAULT_MODEL, LEGACY_MODELS
 from torchcontact.objects import ObjectOptions, is_mesh_file
 from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.results import (
@@ -71,15 +66,10 @@ from torchcontact.results import (
 )
 from torchcontact.shipped import SHIPPED, resolve_learned
 from torchcontact.sim.plant import as_pose
-from torchcontact.validation import is_finite_number
 
 SCENES_VERSION = 11
 """Version of the plants, samplers and MPC models, stored with every trial record so that a
 resumed sweep reruns trials from older versions (docs/experiments.md lists what each changed)."""
-
-MAX_STIFFNESS = 1e9
-"""The largest K a trial takes: far above any contact's (the paper's are 0.5 to 5), and far
-below where the MPC's float32 cost overflows (K = 1e20 makes it NaN at its first plan)."""
 
 MAX_TRIALS = 1_000_000
 """The most trials one call of :func:`trial_configs` makes (``torchcontact run`` one run): more
@@ -214,11 +204,8 @@ class TrialConfig:
         task, object: the task and the object (a name or a mesh path); seed: the trial's.
         max_steps: control steps at most.
         settings: the solver settings.
-        stiffness: K of the paper's model (None with ``learned`` or the QP).
-        model: one of :data:`~torchcontact.mpc.models.MPC_MODELS`; relaxation: the paper's κ
-            of a model that takes one (the relaxed QP).
-        learned: a checkpoint whose K(q), D(q) the MPC plans with, or ``"shipped"``: the
-            environment's shipped model (:mod:`torchcontact.shipped`).
+        model_options: the contact model the MPC plans through, resolved for the environment
+            (:meth:`~torchcontact.mpc.model_options.ModelOptions.resolved`).
         planner: the planner's registered name.
         scenes: :data:`SCENES_VERSION`; collision: how the object collides.
         robot, tips: a user robot's MJCF and fingertip sites (``env="custom"``);
@@ -227,8 +214,6 @@ class TrialConfig:
             environment's cost terms (:func:`trial_configs` gives the environment's unless
             told; none with ``cost``).
         object_options: the user's settings of the object, its defaults for the scene's.
-        residual_plan: how the plan uses a learned model's object residual
-            (:data:`~torchcontact.mpc.controller.RESIDUAL_PLANS`; no effect without one).
 
     A record holds these flat, each part's fields under :data:`RECORD_PARTS`' prefix
     (:func:`flat_config`), as records have always held them.
@@ -240,10 +225,7 @@ class TrialConfig:
     seed: int
     max_steps: int
     settings: MPCSettings
-    stiffness: float | None
-    model: str = DEFAULT_MODEL
-    relaxation: float | None = None
-    learned: str | None = None
+    model_options: ModelOptions
     scenes: int = SCENES_VERSION
     collision: str = BENCHMARK_COLLISION
     planner: str = "lbfgs"
@@ -254,14 +236,14 @@ class TrialConfig:
     cost: str | None = None
     cost_options: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
     object_options: ObjectOptions = ObjectOptions()
-    residual_plan: str = "fixed"
 
     @property
     def variant(self) -> str:
         """The environment tagged with a non-default model: ``trifinger_relaxed_qp``."""
-        if self.learned is not None and self.learned != SHIPPED:
+        model = self.model_options
+        if model.learned is not None and model.learned != SHIPPED:
             return f"{self.env}_learned"
-        return self.env if self.model == DEFAULT_MODEL else f"{self.env}_{self.model}"
+        return self.env if model.model == DEFAULT_MODEL else f"{self.env}_{model.model}"
 
     @property
     def name(self) -> str:
@@ -282,6 +264,7 @@ class TrialConfig:
 
 RECORD_PARTS = {
     "settings": (MPCSettings, ""),
+    "model_options": (ModelOptions, ""),
     "robot_options": (RobotOptions, ""),
     "cost_options": (CostOptions, ""),
     "object_options": (ObjectOptions, "object"),
@@ -318,7 +301,7 @@ def config_from_flat(flat: dict) -> TrialConfig:
     return TrialConfig(**rest, **parts)
 
 
-RECORD_KEYS = tuple(flat_config(TrialConfig("", "", "", 0, 1, PAPER, None)))
+RECORD_KEYS = tuple(flat_config(TrialConfig("", "", "", 0, 1, PAPER, ModelOptions())))
 """The configuration keys of a record, in :func:`flat_config`'s order."""
 
 
@@ -400,12 +383,9 @@ def trial_configs(
     settings = _settings(description, settings)
     pairs, seeds = (x if hasattr(x, "__len__") else list(x) for x in (pairs, seeds))
     _check_trial_arguments(description, pairs, seeds, max_steps, options)
-    kappa = mpc_model(options.get("model", DEFAULT_MODEL)).relaxation
-    if kappa is not None:
-        options.setdefault("relaxation", kappa)
-    elif options.get("stiffness") is None and options.get("learned") is None:
-        options.update(default_model_fields(description))
-    options.setdefault("stiffness", None)
+    options["model_options"] = (options.get("model_options") or ModelOptions()).resolved(
+        description
+    )
     options.setdefault("planner", description.planner)
     options["cost_options"] = _cost_options(description, options)
     steps = description.criterion.max_steps if max_steps is None else max_steps
@@ -494,17 +474,6 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
         isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1
     ):
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    for name, most in (("stiffness", MAX_STIFFNESS), ("relaxation", math.inf)):
-        value = options.get(name)
-        if value is not None and not (is_finite_number(value) and 0 < value <= most):
-            limit = (
-                f"a positive number at most {most:g}"
-                if most < math.inf
-                else "a positive finite number"
-            )
-            raise ValueError(f"{name} must be {limit} (or None), got {value!r}")
-    mpc_model(options.get("model", DEFAULT_MODEL))
-    resolve_learned(options.get("learned"), description.name)
 
 
 def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> dict:
@@ -518,9 +487,10 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
     hashes = {} if hashes is None else hashes
     inputs = {}
     for key, field in INPUT_FILES.items():
-        path = getattr(config, field)
         if field == "learned":
-            path = resolve_learned(path, config.env)
+            path = resolve_learned(config.model_options.learned, config.env)
+        else:
+            path = getattr(config, field)
         if field == "env_module" and path is not None and not path.endswith(".py"):
             path = importlib.util.find_spec(path).origin  # imported already: it registered env
         if path is None or (field == "object" and not is_mesh_file(path)):
@@ -536,9 +506,7 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
 
 def trial_model(config: TrialConfig, h: float) -> ContactModel:
     """The contact model of ``config`` for a model step ``h`` [s]."""
-    if config.learned is not None:
-        return load_learned(config.learned, config.env, config.robot, config.tips)
-    return mpc_model(config.model).build(h, config.stiffness, config.relaxation)
+    return config.model_options.build(config.env, h, config.robot, config.tips)
 
 
 def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplicitMPC]:
@@ -563,7 +531,7 @@ def build_trial(config: TrialConfig) -> tuple[Environment, object, ContactImplic
         config.settings,
         cost,
         background_compile=True,
-        residual_plan=config.residual_plan,
+        residual_plan=config.model_options.residual_plan,
     )
     return env, plant, mpc
 
@@ -741,8 +709,11 @@ def _config_kinds() -> dict[str, str]:
             kinds[name] = _json_kind(hint)
             continue
         cls, prefix = RECORD_PARTS[name]
-        for field in fields(cls):
-            kinds[_key(prefix, field.name)] = _json_kind(typing.get_type_hints(cls)[field.name])
+        for field in fields(cls):  # a field whose record holds a narrower kind says so
+            kind = field.metadata.get("record_kind")
+            kinds[_key(prefix, field.name)] = kind or _json_kind(
+                typing.get_type_hints(cls)[field.name]
+            )
     return kinds
 
 
@@ -853,7 +824,8 @@ def record_status(path: Path, config: TrialConfig, inputs: dict) -> tuple[str, o
     differences = record_differences(record, config, inputs)
     if not differences:
         return "reuse", TrialRecord.from_dict(record)
-    release = RELEASE_FIELDS + (("inputs.learned_sha256",) if config.learned == SHIPPED else ())
+    shipped = config.model_options.learned == SHIPPED  # the shipped model moves with releases
+    release = RELEASE_FIELDS + (("inputs.learned_sha256",) if shipped else ())
     stale = all(key in release for key in differences)
     return ("stale" if stale else "mismatch"), differences
 

@@ -8,6 +8,7 @@ from torchcontact.cli import main
 from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import PAPER_STIFFNESS, STIFFNESS
+from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.report import SUMMARY_KEYS
 from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig, build_trial
 from torchcontact.relaxed_qp import PAPER_RELAXATION
@@ -104,7 +105,7 @@ def test_the_options_become_one_trial_config_per_seed_and_pair():
         seed=0,
         max_steps=env.criterion.max_steps,
         settings=balanced,
-        stiffness=STIFFNESS,
+        model_options=ModelOptions(stiffness=STIFFNESS),
     )
     assert configs[0].settings == balanced
 
@@ -115,9 +116,9 @@ def test_first_seed_moves_the_seeds_off_the_reported_ones():
 
 
 def test_a_residuals_plan_is_fixed_unless_told_and_reaches_the_mpc():
-    assert configs_of(parse_args(["fingertips"]))[0].residual_plan == "fixed"
+    assert configs_of(parse_args(["fingertips"]))[0].model_options.residual_plan == "fixed"
     config = configs_of(parse_args(["fingertips", "--residual-plan", "full"]))[0]
-    assert config.residual_plan == "full"
+    assert config.model_options.residual_plan == "full"
     assert build_trial(config)[2].residual_plan == "full"
 
 
@@ -126,17 +127,20 @@ def test_each_model_has_its_own_variant_the_default_output_folder():
     assert configs_of(parse_args(["fingertips"]))[0].variant == "fingertips"
     relaxed = configs_of(parse_args(["fingertips", "--model", "relaxed_qp"]))[0]
     assert relaxed.variant == "fingertips_relaxed_qp"
-    assert parse_args(["fingertips"]).model == "paper"
+    assert parse_args(["fingertips"]).model_options.model == "paper"
 
 
 def test_the_cli_plans_with_each_environments_default_k_and_learn_k_keeps_the_papers():
     from torchcontact.learn.scenes import make_scene
 
-    assert parse_args(["fingertips"]).stiffness == STIFFNESS == 4.64  # learn-k's best on the cube
-    assert parse_args(["allegro"]).stiffness == 0.5
-    assert parse_args(["trifinger"]).stiffness is None  # its shipped model (tests/test_shipped.py)
-    assert parse_args(["trifinger", "--stiffness", "paper"]).stiffness == 0.5
-    assert parse_args(["fingertips", "--stiffness", "1"]).stiffness == 1.0
+    def k(*argv):
+        return parse_args(list(argv)).model_options.stiffness
+
+    assert k("fingertips") == STIFFNESS == 4.64  # learn-k's best on the cube
+    assert k("allegro") == 0.5
+    assert k("trifinger") is None  # its shipped model (tests/test_shipped.py)
+    assert k("trifinger", "--stiffness", "paper") == 0.5
+    assert k("fingertips", "--stiffness", "1") == 1.0
     assert make_scene("fingertips", "cube").paper_stiffness == PAPER_STIFFNESS == 1.0
     assert environment("fingertips").stiffness == PAPER_STIFFNESS
 

@@ -99,11 +99,13 @@ def test_a_user_robot_from_its_mjcf_pushes_a_cube_to_its_target_closed_loop():
     mpc = ContactImplicitMPC.from_env(env, plant, settings=EAGER)
     initial, target = env.sample(plant, "reposition", 0)
     assert target[1] - initial[1] >= 0.01  # a push of 1-1.5 cm along y (the finger reaches 2 cm)
+    from torchcontact.mpc.model_options import ModelOptions
     from torchcontact.mpc.trials import TrialConfig
 
     config = TrialConfig(
         env="gripper", task="reposition", object="cube", seed=0, max_steps=150,
-        settings=MPCSettings(max_iter=10, compile=False), stiffness=0.5,
+        settings=MPCSettings(max_iter=10, compile=False),
+        model_options=ModelOptions(stiffness=0.5),
     )  # fmt: skip
     record = run_trial(config, env, plant, mpc)
     assert record.success, record.pos_err_mm

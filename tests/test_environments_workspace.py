@@ -108,6 +108,7 @@ def test_a_bad_control_bound_is_refused():
 def _closed_loop(robot: Path, name: str, seed: int, max_steps: int):
     """The record of the robot's default trial ``seed`` with the defaults, planned eagerly."""
     from torchcontact.mpc.controller import ContactImplicitMPC
+    from torchcontact.mpc.model_options import ModelOptions
     from torchcontact.mpc.trials import TrialConfig, run_trial
 
     env = from_mjcf(robot, name=name)
@@ -116,7 +117,7 @@ def _closed_loop(robot: Path, name: str, seed: int, max_steps: int):
     mpc = ContactImplicitMPC.from_env(env, plant, settings=settings)
     config = TrialConfig(
         env=name, task="reposition", object="cube", seed=seed, max_steps=max_steps,
-        settings=settings, stiffness=env.default_stiffness,
+        settings=settings, model_options=ModelOptions(stiffness=env.default_stiffness),
     )  # fmt: skip
     return env, plant, run_trial(config, env, plant, mpc)
 

@@ -41,12 +41,12 @@ from torchcontact.integrate import JointLayout, integrate
 from torchcontact.learn.data import collect
 from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.mpc.controller import ContactImplicitMPC
+from torchcontact.mpc.model_options import MAX_STIFFNESS, ModelOptions
+from torchcontact.mpc.models import load_learned
 from torchcontact.mpc.trials import (
-    MAX_STIFFNESS,
     RecordMismatch,
     TrialsInterrupted,
     build_trial,
-    load_learned,
     record_status,
     run_trials,
     trial_configs,
@@ -165,7 +165,7 @@ PARSER_ERRORS += [
         ["run", "fingertips", "--horizon", "0"],
         "--horizon must be an integer from 1 to 1,000, got 0",
     ),
-    (["run", "fingertips", "--relaxation", "-1"], "--relaxation must be positive"),
+    (["run", "fingertips", "--relaxation", "-1"], "--relaxation must be a positive"),
     (["run", "fingertips", "--model", "relaxed_qp", "--relaxation", "nan"], "--relaxation must"),
     (["run", "trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts"),
     (["run", "trifinger", "--hold-approach", "-1"], "--hold-approach must be a weight > 0, got -1"),
@@ -206,7 +206,7 @@ PARSER_ERRORS += [
     (["run", "trifinger", "--object-size", "0.1", "--object-scale", "2"], "size and scale both"),
     (["learn-k", "--lr", "nan"], "--lr must be a positive finite number, got nan"),
     (["run", "fingertips", "--trials", "100000000"], "--trials must be at most 1000000"),
-    (["run", "fingertips", "--stiffness", "1e30"], "a positive number at most 1e+09, got 1e30"),
+    (["run", "fingertips", "--stiffness", "1e30"], "a positive number at most 1e+09, got 1e+30"),
     (["compare", "a"], "the following arguments are required: b"),
     (["compare", "a", "b", "c"], "unrecognized arguments: c"),
     (["learn-k", "--steps", "x"], "argument --steps: invalid int value: 'x'"),
@@ -340,27 +340,29 @@ def test_the_shipped_model_is_compared_with_its_manifest(tmp_path):
 
 # --- 6. the trial API checks its arguments ---------------------------------------------------
 
+CUBE = ("fingertips", [("rotation", "cube")])
+
 TRIAL_API_ERRORS = [
     (("trifinger", [("fly", "cube")]), {}, r"^pairs: task must be one of \("),
     (("fingertips", [("rotation", "teapot")]), {}, r"^pairs: object of task 'rotation' must be"),
     (("fingertips", [("rotation", "random-3")]), {}, r"^pairs: object of task 'rotation'"),
     (("fingertips", ["rotation"]), {}, r"^pairs must hold \(task, object\) pairs"),
-    (("fingertips", [("rotation", "cube")]), {"max_steps": 0}, r"^max_steps must be a positive"),
-    (("fingertips", [("rotation", "cube")]), {"max_steps": 2.5}, r"^max_steps must be a positive"),
-    (("fingertips", [("rotation", "cube")]), {"stiffness": -1}, r"^stiffness must be a positive"),
-    (("fingertips", [("rotation", "cube")]), {"stiffness": "3"}, r"^stiffness must be a positive"),
-    (("fingertips", [("rotation", "cube")]), {"stiffness": math.nan}, r"^stiffness must be"),
-    (("fingertips", [("rotation", "cube")]), {"relaxation": 0.0}, r"^relaxation must be"),
-    (("fingertips", [("rotation", "cube")]), {"model": "qp2"}, r"^model must be one of"),
-    (("fingertips", [("rotation", "cube")]), {"settings": 3}, r"^settings must be MPCSettings"),
-    (("fingertips", [("rotation", "cube")]), {"settings": "quick"}, r"^preset must be one of"),
-    (("fingertips", [("rotation", "cube")]), {"seeds": [-1]}, r"^seeds must be non-negative"),
-    (("fingertips", [("rotation", "cube")]), {"seeds": [0.5]}, r"^seeds must be non-negative"),
-    (("fingertips", [("rotation", "cube")]), {"stifness": 3}, r"^options must be fields of Tri"),
+    (CUBE, {"max_steps": 0}, r"^max_steps must be a positive"),
+    (CUBE, {"max_steps": 2.5}, r"^max_steps must be a positive"),
+    (CUBE, {"model": {"stiffness": -1}}, r"^stiffness must be 'shipped', 'paper' or a positive"),
+    (CUBE, {"model": {"stiffness": "3"}}, r"^stiffness must be 'shipped', 'paper' or a positive"),
+    (CUBE, {"model": {"stiffness": math.nan}}, r"^stiffness must be"),
+    (CUBE, {"model": {"relaxation": 0.0}}, r"^relaxation must be"),
+    (CUBE, {"model": {"model": "qp2"}}, r"^model must be one of"),
+    (CUBE, {"settings": 3}, r"^settings must be MPCSettings"),
+    (CUBE, {"settings": "quick"}, r"^preset must be one of"),
+    (CUBE, {"seeds": [-1]}, r"^seeds must be non-negative"),
+    (CUBE, {"seeds": [0.5]}, r"^seeds must be non-negative"),
+    (CUBE, {"stifness": 3}, r"^options must be fields of Tri"),
     (("nowhere", [("rotation", "cube")]), {}, r"^env must be one of"),
     (("fingertips", []), {}, r"^pairs must hold at least one entry"),
-    (("fingertips", [("rotation", "cube")]), {"seeds": []}, r"^seeds must hold at least one"),
-    (("fingertips", [("rotation", "cube")]), {"learned": "/no/such.pt"}, r"^learned \(--learn"),
+    (CUBE, {"seeds": []}, r"^seeds must hold at least one"),
+    (CUBE, {"model": {"learned": "/no/such.pt"}}, r"^learned \(--learn"),
 ]
 
 
@@ -368,6 +370,8 @@ TRIAL_API_ERRORS = [
 def test_trial_configs_checks_its_arguments_as_the_command_line_does(args, options, message):
     seeds = options.pop("seeds", [0])
     with pytest.raises(ValueError, match=message):
+        if "model" in options:  # the part refuses its values as it is made
+            options["model_options"] = ModelOptions(**options.pop("model"))
         trial_configs(*args, seeds, **options)
 
 
@@ -617,9 +621,9 @@ def test_a_nan_in_a_contacts_field_is_named(name):
 def test_a_stiffness_past_what_the_mpc_takes_is_refused_first(tmp_path, capsys, stiffness):
     last = refused([*RUN, "--out", str(tmp_path), "--stiffness", stiffness], capsys, "run",
                     "--stiffness")  # fmt: skip
-    assert f"at most {MAX_STIFFNESS:g}, got {stiffness}" in last
-    with pytest.raises(ValueError, match=r"^stiffness must be a positive number at most 1e\+09"):
-        trial_configs("fingertips", [("rotation", "cube")], [0], stiffness=float(stiffness))
+    assert f"at most {MAX_STIFFNESS:g}, got {float(stiffness)!r}" in last
+    with pytest.raises(ValueError, match=r"^stiffness must be .* a positive number at most 1e\+09"):
+        ModelOptions(stiffness=float(stiffness))
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
 from torchcontact.environments.presets import PAPER, MPCSettings
 from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc import trials
+from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.models import DEFAULT_MODEL, MPC_MODELS
 from torchcontact.mpc.report import csv_row, summarize
 from torchcontact.mpc.trials import (
@@ -44,7 +45,7 @@ CONFIG = TrialConfig(
     seed=0,
     max_steps=5,
     settings=MPCSettings(max_iter=5, compile=False),
-    stiffness=STIFFNESS,
+    model_options=ModelOptions(stiffness=STIFFNESS),
 )
 TWO = [CONFIG, dataclasses.replace(CONFIG, seed=1)]
 FAST = trial_configs(
@@ -98,31 +99,33 @@ def test_trial_configs_fill_in_the_environments_defaults(tmp_path):
     first = configs[0]
     assert first.settings == env.preset() and first.max_steps == env.criterion.max_steps
     # the TriFinger ships a learned model: the default plans with it, not with a constant K
-    assert first.model == DEFAULT_MODEL and first.stiffness is None and first.learned == SHIPPED
-    assert first.relaxation is None and first.variant == "trifinger"
+    model = first.model_options
+    assert model.model == DEFAULT_MODEL and model.stiffness is None and model.learned == SHIPPED
+    assert model.relaxation is None and first.variant == "trifinger"
     (allegro,) = trial_configs("allegro", [("on-palm", "cube")], [0])
-    assert allegro.stiffness == environment("allegro").default_stiffness == 0.5
-    assert allegro.learned is None
-    (qp,) = trial_configs("fingertips", [("rotation", "cube")], [3], PAPER, 7, model="relaxed_qp")
+    assert allegro.model_options.stiffness == environment("allegro").default_stiffness == 0.5
+    assert allegro.model_options.learned is None
+    qp = ModelOptions(model="relaxed_qp")
+    (qp,) = trial_configs("fingertips", [("rotation", "cube")], [3], PAPER, 7, model_options=qp)
     assert (qp.seed, qp.max_steps, qp.settings) == (3, 7, PAPER)
-    assert qp.relaxation == PAPER_RELAXATION and qp.stiffness is None
+    assert qp.model_options.relaxation == PAPER_RELAXATION and qp.model_options.stiffness is None
     (tmp_path / "model.pt").write_bytes(b"")  # only named here: trial_configs asks it exists
-    model = str(tmp_path / "model.pt")
-    (learned,) = trial_configs("fingertips", [("rotation", "cube")], [0], learned=model)
-    assert learned.stiffness is None and learned.variant == "fingertips_learned"
+    given = ModelOptions(learned=str(tmp_path / "model.pt"))
+    (learned,) = trial_configs("fingertips", [("rotation", "cube")], [0], model_options=given)
+    assert learned.model_options.stiffness is None and learned.variant == "fingertips_learned"
 
 
 def test_the_relaxed_qp_takes_the_papers_kappa_at_the_objects_step():
     """κ is converted for the plant's model step: the foam brick's h is 0.05 s, not 0.1 s."""
     assert tuple(MPC_MODELS) == ("paper", "relaxed_qp") and DEFAULT_MODEL == "paper"
-    config = dataclasses.replace(
-        CONFIG, object="foam_brick", model="relaxed_qp", stiffness=None, relaxation=2e-4
-    )
+    qp = ModelOptions(model="relaxed_qp", relaxation=2e-4)
+    config = dataclasses.replace(CONFIG, object="foam_brick", model_options=qp)
     env, plant, mpc = build_trial(config)
     assert env.h(plant) == 0.05 and isinstance(mpc.model, RelaxedQP)
     assert mpc.model.relaxation == pytest.approx(paper_relaxation(0.05, 2e-4))
     assert config.name == "fingertips_relaxed_qp_rotation_foam_brick_seed0"
-    assert dataclasses.replace(config, relaxation=PAPER_RELAXATION).variant == (
+    paper_kappa = ModelOptions(model="relaxed_qp", relaxation=PAPER_RELAXATION)
+    assert dataclasses.replace(config, model_options=paper_kappa).variant == (
         "fingertips_relaxed_qp"
     )
 
@@ -262,7 +265,7 @@ def test_records_with_the_models_former_names_resume(tmp_path):
     record = json.loads(path.read_text())
     path.write_text(json.dumps({**record, "model": "complementarity_free"}))
     (resumed,), seen = _run([CONFIG], tmp_path)
-    assert seen == [(0, True)] and resumed.config.model == "paper"
+    assert seen == [(0, True)] and resumed.config.model_options.model == "paper"
     _strip(tmp_path, CONFIG, ("model",))
     _, seen = _run([CONFIG], tmp_path)
     assert seen == [(0, True)]
@@ -467,7 +470,7 @@ def test_a_changed_mesh_or_checkpoint_at_the_same_path_refuses_the_run(
     if field == "object":
         config = dataclasses.replace(config, env="trifinger", object=str(file))
     else:
-        config = dataclasses.replace(config, learned=str(file), stiffness=None)
+        config = dataclasses.replace(config, model_options=ModelOptions(learned=str(file)))
     path = _fake_record(tmp_path / "out", fast_record, config)
     before = path.read_bytes()
     (reused,), seen = _run([config], tmp_path / "out")
@@ -507,7 +510,7 @@ def test_a_mesh_named_like_a_builtin_object_gets_its_own_record_name():
 
 
 def test_two_configs_writing_one_record_are_refused(tmp_path):
-    other_k = dataclasses.replace(CONFIG, stiffness=1.0)
+    other_k = dataclasses.replace(CONFIG, model_options=ModelOptions(stiffness=1.0))
     with pytest.raises(ValueError, match=f"same record {CONFIG.name}.json.*stiffness"):
         run_trials([CONFIG, other_k], out=tmp_path, progress=False)
 

@@ -19,6 +19,7 @@ from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, PAPER_OBJECT_MASS, TRIFINGER_ENV
 from torchcontact.environments.presets import MPCSettings
+from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.trials import TrialConfig, config_from_flat, flat_config, object_facts
 from torchcontact.objects import ObjectOptions, is_mesh_file, resolve
 from torchcontact.shapes import MAX_MESH_EXTENT, OBJECT_SIZES, load_object, make_object
@@ -250,7 +251,8 @@ def test_object_facts_describe_the_plants_object(box_mesh):
 
 def test_a_trial_config_carries_the_object_options():
     base = {"env": "trifinger", "task": "in-hand", "object": "cube", "seed": 0, "max_steps": 1,
-            "settings": MPCSettings(max_iter=1, compile=False), "stiffness": 0.5}  # fmt: skip
+            "settings": MPCSettings(max_iter=1, compile=False),
+            "model_options": ModelOptions(stiffness=0.5)}  # fmt: skip
     assert TrialConfig(**base).object_options.is_default
     options = ObjectOptions(scale=2.0, mass=0.02, friction=0.4)
     record = flat_config(TrialConfig(**base, object_options=options))

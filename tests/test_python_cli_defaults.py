@@ -76,9 +76,10 @@ def test_the_cli_config_is_trial_configs_default(built):
     default = trial_configs(config.env, [(config.task, config.object)], [config.seed], **options)
     assert default == [config]
     assert config.settings == env.preset()
-    assert {k: getattr(config, k) for k in ("learned", "stiffness")} == default_model_fields(env)
-    assert (config.learned == SHIPPED) == env.ships_model
-    assert config.model == "paper" and config.planner == env.planner
+    model = config.model_options
+    assert {k: getattr(model, k) for k in ("learned", "stiffness")} == default_model_fields(env)
+    assert (model.learned == SHIPPED) == env.ships_model
+    assert model.model == "paper" and config.planner == env.planner
 
 
 def test_the_model_is_the_clis(built):
@@ -86,7 +87,7 @@ def test_the_model_is_the_clis(built):
     same_module(python.model, cli.model)
     same_module(python.system, cli.system)  # a shipped calibration calibrates both
     if env.ships_model:  # the shipped model, not the paper's constant K
-        assert config.learned == SHIPPED and config.stiffness is None
+        assert config.model_options.learned == SHIPPED and config.model_options.stiffness is None
     else:
         assert float(python.model.stiffness.value) == pytest.approx(env.default_stiffness)
 

@@ -40,11 +40,11 @@ def test_shipped_model_loads_and_matches_its_manifest(env):
 @pytest.mark.parametrize("env", SHIPPED_ENVS)
 def test_default_mpc_plans_with_the_shipped_model(env):
     """Fails if the defaults fall back to a constant K (the paper's or any other)."""
-    args = parse_args([env])
+    args = parse_args([env]).model_options
     assert args.learned == SHIPPED and args.stiffness is None
     task, obj = environment(env).pairs[0]
     (config,) = trial_configs(env, [(task, obj)], [0])
-    assert config.learned == SHIPPED and config.stiffness is None
+    assert config.model_options.learned == SHIPPED and config.model_options.stiffness is None
     model = trial_model(config, h=0.1)
     shipped = load_checkpoint(shipped_path(env))[0]
     assert not isinstance(model.stiffness, Constant) or shipped.stiffness.__class__ is Constant
@@ -57,7 +57,7 @@ def test_default_mpc_plans_with_the_shipped_model(env):
 
 @pytest.mark.parametrize("env", SHIPPED_ENVS)
 def test_paper_stiffness_flag_takes_the_papers_constant(env):
-    args = parse_args([env, "--stiffness", "paper"])
+    args = parse_args([env, "--stiffness", "paper"]).model_options
     assert args.learned is None and args.stiffness == environment(env).stiffness
 
 
@@ -82,7 +82,8 @@ def test_a_users_robot_takes_its_own_checkpoint_and_refuses_the_shipped_one(tmp_
     meta = {"scene": None, "gamma": 100.0, "facets": 4, "slots": 8, "nq": 11, "nv": 10, "nu": 4,
             "joints": joints, "paper_stiffness": 1.0}  # fmt: skip
     path = save_checkpoint(tmp_path / "gripper.pt", build_model(config, meta), config, meta)
-    assert parse_args([*CUSTOM, "--learned", str(path)]).learned == str(path.resolve())
+    given = parse_args([*CUSTOM, "--learned", str(path)]).model_options
+    assert given.learned == str(path.resolve())
     with pytest.raises(SystemExit) as info:
         main(["run", *CUSTOM, "--learned", str(shipped_path("trifinger")), "--no-progress"])
     err = capsys.readouterr().err.strip()

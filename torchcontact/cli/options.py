@@ -5,7 +5,8 @@ configures (:class:`~torchcontact.environments.presets.MPCSettings`,
 :class:`~torchcontact.objects.ObjectOptions`, the environment options of
 :mod:`torchcontact.environments.options`). Its option is that field: ``--`` + the prefix and
 the name with dashes, its type and help from the field, its validation the dataclass's own.
-A field's ``metadata`` may hold ``help`` (required), ``metavar`` and ``choices``. An option left
+A field's ``metadata`` may hold ``help`` (required), ``metavar``, ``choices`` and ``parse`` (how
+the option's text becomes the field's value, where its type alone does not say). An option left
 out keeps the value of the object it overrides (a preset, the environment's), so every
 generated option defaults to None, or for a bool field to its flag not given.
 """
@@ -49,7 +50,7 @@ def add_options(
         group.add_argument(
             flag,
             dest=dest,
-            type=_parser(hints[field.name]),
+            type=meta.get("parse") or _parser(hints[field.name]),
             default=None,
             choices=meta.get("choices"),
             metavar=meta.get("metavar"),

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 from pathlib import Path
 
@@ -36,17 +35,10 @@ from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
 from torchcontact.environments.robot_options import RobotOptions
 from torchcontact.environments.tasks import TRIALS
 from torchcontact.mpc import report
-from torchcontact.mpc.controller import RESIDUAL_PLANS
-from torchcontact.mpc.models import (
-    DEFAULT_MODEL,
-    MPC_MODELS,
-    default_model_fields,
-    load_learned,
-    mpc_model,
-)
+from torchcontact.mpc.model_options import ModelOptions
+from torchcontact.mpc.models import load_learned, mpc_model
 from torchcontact.mpc.planners import PLANNERS
 from torchcontact.mpc.trials import (
-    MAX_STIFFNESS,
     MAX_TRIALS,
     TrialConfig,
     finish_compiling,
@@ -64,13 +56,9 @@ from torchcontact.results import (
     write_json,
 )
 from torchcontact.shapes import COLLISIONS, load_object
-from torchcontact.shipped import SHIPPED, shipped_path
 
 SUMMARY_FILES = ("summary.json", "trials.csv", "results.png")
 """What :func:`write_summary` writes in ``--out``."""
-
-PAPER_STIFFNESS = "paper"
-"""``--stiffness paper``: the environment's K from the paper."""
 
 IMPORT = "--import"
 """``torchcontact run NAME --import MODULE``: an environment a user's module registers."""
@@ -133,42 +121,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--cost", choices=sorted(COSTS), default=None, help="the MPC cost; default the env's"
     )
     parser.add_argument(
-        "--model",
-        choices=tuple(MPC_MODELS),
-        default=DEFAULT_MODEL,
-        help="contact model the MPC plans through: "
-        + "; ".join(f"{name} ({model.about})" for name, model in MPC_MODELS.items())
-        + f"; default {DEFAULT_MODEL}",
-    )
-    parser.add_argument(
-        "--stiffness",
-        default=None,
-        help="the paper model's K: 'shipped' (the environment's learned K(q), D(q) shipped "
-        "with the package, the default where it has one), 'paper' (the paper's constant K) "
-        "or a number",
-    )
-    parser.add_argument(
-        "--relaxation",
-        type=float,
-        default=None,
-        help="the paper's κ in λ∘g = κ, for a model that takes one; default "
-        + ", ".join(f"{n}'s {m.relaxation:g}" for n, m in MPC_MODELS.items() if m.relaxation),
-    )
-    parser.add_argument(
-        "--learned",
-        type=Path,
-        default=None,
-        help="a `torchcontact learn-k` checkpoint (model.pt): plan with its learned K(q), D(q)",
-    )
-    parser.add_argument(
-        "--residual-plan",
-        choices=RESIDUAL_PLANS,
-        default="fixed",
-        help="how a --learned model's object residual enters the plan: fixed (its correction "
-        "along the warm start, added as a constant; default) or full (re-evaluated and "
-        "differentiated at every planned state)",
-    )
-    parser.add_argument(
         "--collision",
         choices=COLLISIONS,
         default=BENCHMARK_COLLISION,
@@ -195,6 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--video", action="store_true", help="record trial 0 of each pair")
     parser.add_argument("--no-progress", action="store_true")
+    add_options(parser, ModelOptions, title="the contact model the MPC plans through")
     add_options(parser, MPCSettings, title="solver settings, each overriding the --preset's")
     add_options(parser, ObjectOptions, "object", "the object (hands, custom), default the scene's")
     add_options(parser, CostOptions, title="the environment's cost terms (hands)")
@@ -209,47 +162,22 @@ def _folder(text: str) -> Path:
     return Path(text)
 
 
-def _stiffness(text: str | None) -> float | str | None:
-    """``--stiffness``: ``"shipped"``, ``"paper"`` or a positive number (``ValueError``
-    otherwise)."""
-    if text is None or text in (SHIPPED, PAPER_STIFFNESS):
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not 0 < value <= MAX_STIFFNESS:
-        raise ValueError(
-            f"--stiffness must be 'shipped', 'paper' or a positive number at most "
-            f"{MAX_STIFFNESS:g}, got {text}"
-        )
-    return value
-
-
 def _check_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Reject option combinations that mean nothing, naming the option."""
-    model = mpc_model(args.model)
-    try:
-        args.stiffness = _stiffness(args.stiffness)
-    except ValueError as error:
-        parser.error(str(error))
-    if args.stiffness is not None and not model.stiffness:
-        parser.error(f"--stiffness is for the paper model, got {args.stiffness}")
-    takes = model.relaxation is not None
-    if args.relaxation is not None and (not takes or not 0 < args.relaxation < math.inf):
-        parser.error(f"--relaxation must be positive and is for relaxed_qp, got {args.relaxation}")
-    if args.learned is not None and (not model.stiffness or args.stiffness is not None):
-        parser.error(
-            "--learned replaces the paper model's constant K: drop --model and --stiffness"
-        )
+    args.model_options = options_object(parser, args, ModelOptions())
+    model = mpc_model(args.model_options.model)
     if not model.moving_gaps and args.gaps not in (None, "frozen"):
         parser.error(
-            f"--gaps {args.gaps} is for the paper model; {args.model} plans with frozen gaps"
+            f"--gaps {args.gaps} is for the paper model; {model.name} plans with frozen gaps"
         )
     if not model.moving_gaps:
         args.gaps = "frozen"
-    if args.learned is not None and not args.learned.is_file():
-        parser.error(f"--learned must be an existing checkpoint file, got {str(args.learned)!r}")
+    learned = args.model_options.learned
+    if learned is not None:
+        if not Path(learned).is_file():
+            parser.error(f"--learned must be an existing checkpoint file, got {learned!r}")
+        learned = str(Path(learned).resolve())  # one record name however it was typed
+        args.model_options = dataclasses.replace(args.model_options, learned=learned)
     for name in ("trials", "workers", "max_steps"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
@@ -324,20 +252,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         parser.error(named_as_option(str(error), RobotOptions))
     args.settings = options_object(parser, args, env.preset(args.preset))
     args.max_steps = args.max_steps or env.criterion.max_steps
-    model = mpc_model(args.model)
-    if model.relaxation is not None:
-        args.relaxation = model.relaxation if args.relaxation is None else args.relaxation
-    elif args.learned is not None:
-        args.learned = str(args.learned.resolve())
-    elif args.stiffness == SHIPPED:
-        if not env.ships_model:
-            parser.error(f"--stiffness shipped: {args.env} ships no model")
-        args.learned, args.stiffness = SHIPPED, None
-    elif args.stiffness == PAPER_STIFFNESS:
-        args.stiffness = env.stiffness
-    elif args.stiffness is None:  # the default model, as trial_configs and from_env take it
-        fields = default_model_fields(env)
-        args.learned, args.stiffness = fields["learned"], fields["stiffness"]
+    try:
+        args.model_options = args.model_options.resolved(env)
+    except ValueError as error:
+        parser.error(named_as_option(str(error), ModelOptions))
     args.planner = args.planner or env.planner
     args.env_description = env
     _load_inputs(args, env)
@@ -347,9 +265,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def _load_inputs(args: argparse.Namespace, env) -> None:
     """Read the checkpoint of ``--learned`` and each mesh file of ``--object`` once, before any
     trial: ``ValueError`` naming the option when one is not what it should be."""
-    if args.learned is not None:
+    if args.model_options.learned is not None:
         try:
-            load_learned(args.learned, args.env, args.robot, args.tips)
+            load_learned(args.model_options.learned, args.env, args.robot, args.tips)
         except ValueError as error:
             raise ValueError(f"--learned: {error}") from None
     options = args.object_options
@@ -378,16 +296,6 @@ def configs_of(args: argparse.Namespace) -> list[TrialConfig]:
     )
 
 
-def _about(args: argparse.Namespace) -> str:
-    if mpc_model(args.model).relaxation is not None:
-        return f"{args.model}, paper's κ = {args.relaxation:g}"
-    if args.learned == SHIPPED:
-        return f"learned K(q), D(q) shipped with the package: {shipped_path(args.env)}"
-    if args.learned is not None:
-        return f"learned K(q), D(q) from {args.learned}"
-    return f"K = {args.stiffness:g}"
-
-
 def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
     """One line per object of the run (up to ``at_most``; a count beyond): the size, mass,
     friction and collision shape its plant uses, and what the environment derived for it."""
@@ -412,7 +320,8 @@ def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
 def write_summary(args: argparse.Namespace, records: list[dict], out: Path) -> dict:
     """Summarize ``records`` overall and per pair, and write the summary, CSV and figure."""
     summary = report.summarize(records)
-    summary.update(model=args.model, relaxation=args.relaxation, learned=args.learned)
+    model = args.model_options
+    summary.update(model=model.model, relaxation=model.relaxation, learned=model.learned)
     # the preset's name only when no option overrode it
     unchanged = args.settings == args.env_description.preset(args.preset)
     summary["preset"] = args.preset if unchanged else None
@@ -481,7 +390,8 @@ def main(argv: list[str] | None = None) -> int:
     if terms.hold_first and terms.hold_approach != 1:
         hold += f", approached at {terms.hold_approach:g}× the contact term"
     print(
-        f"MPC through the {args.model} model ({_about(args)}); solver "
+        f"MPC through the {args.model_options.model} model "
+        f"({args.model_options.describe(args.env)}); solver "
         f"{args.settings.label}{planner}{hold}"
     )
     for line in describe_objects(args):
