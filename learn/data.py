@@ -51,7 +51,7 @@ from torchcontact.environments import ENVIRONMENTS
 from torchcontact.integrate import JointLayout, difference
 from torchcontact.learn.policies import ACTIONS, make_policy
 from torchcontact.learn.scenes import BOX_PUSHING, BoxPushingScene, Scene, make_scene
-from torchcontact.objects import is_mesh_file
+from torchcontact.object_sources import mesh_file_of
 from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.results import atomic_write, read_json, write_json
 from torchcontact.systems import QuasiDynamic
@@ -285,7 +285,7 @@ def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, 
         "noise": noise,
         "steps": steps,
         "seed": seed,
-        "object_sha256": content_sha256(obj) if is_mesh_file(obj) else None,
+        "object_sha256": None if mesh_file_of(obj) is None else content_sha256(mesh_file_of(obj)),
         **scene_header(built),
         "trajectories": [],
     }

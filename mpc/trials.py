@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import hashlib
 import importlib.metadata
 import importlib.util
 import json
@@ -44,7 +43,6 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from torchcontact import generated
 from torchcontact.digests import content_sha256
 from torchcontact.environments import environment, import_environments, tasks
 from torchcontact.environments.base import BENCHMARK_COLLISION, Environment
@@ -56,7 +54,8 @@ from torchcontact.mpc.compile_notes import compile_notice, quiet_known_inductor_
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.models import DEFAULT_MODEL, LEGACY_MODELS
-from torchcontact.objects import ObjectOptions, is_mesh_file
+from torchcontact.object_sources import mesh_file_of, object_source, record_stem
+from torchcontact.objects import ObjectOptions
 from torchcontact.parallel import check_backend, parallel_map
 from torchcontact.results import (
     locked_folder,
@@ -247,14 +246,10 @@ class TrialConfig:
 
     @property
     def name(self) -> str:
-        """File stem of the record: ``trifinger_in-hand_cube_seed3``; a mesh path contributes
-        its file stem, ``-mesh-`` and 8 hex digits of the SHA-256 of the path as given
-        (``trifinger_in-hand_cube-mesh-1a2b3c4d_seed3``), so it never names a built-in object's
-        record nor another folder's mesh of the same file name."""
-        obj = self.object
-        if is_mesh_file(obj):
-            obj = f"{Path(obj).stem}-mesh-{hashlib.sha256(obj.encode()).hexdigest()[:8]}"
-        return f"{self.variant}_{self.task}_{obj}_seed{self.seed}"
+        """File stem of the record: ``trifinger_in-hand_cube_seed3``; an object of a source
+        contributes its :func:`~torchcontact.object_sources.record_stem` (a mesh path's
+        ``cube-mesh-1a2b3c4d``)."""
+        return f"{self.variant}_{self.task}_{record_stem(self.object)}_seed{self.seed}"
 
     def matches(self, record: dict) -> bool:
         """Whether the saved ``record`` was made with this configuration (inputs aside)."""
@@ -456,7 +451,7 @@ def _check_trial_arguments(description: Environment, pairs, seeds, max_steps, op
         task, obj = pair
         if task not in description.tasks:
             raise ValueError(f"pairs: task must be one of {description.tasks}, got {task!r}")
-        user = description.user_meshes and (generated.is_generated(obj) or is_mesh_file(obj))
+        user = description.user_meshes and object_source(obj) is not None
         if not user and (task, obj) not in description.pairs:
             also = ", a mesh file or random-SEED" if description.user_meshes else ""
             raise ValueError(
@@ -489,17 +484,19 @@ def trial_inputs(config: TrialConfig, hashes: dict[str, str] | None = None) -> d
     for key, field in INPUT_FILES.items():
         if field == "learned":
             path = resolve_learned(config.model_options.learned, config.env)
+        elif field == "object":
+            path = mesh_file_of(config.object)
         else:
             path = getattr(config, field)
         if field == "env_module" and path is not None and not path.endswith(".py"):
             path = importlib.util.find_spec(path).origin  # imported already: it registered env
-        if path is None or (field == "object" and not is_mesh_file(path)):
+        if path is None:
             inputs[key] = None
             continue
         if not Path(path).is_file():
             raise ValueError(f"{field} must be an existing file, got {path!r} ({config.name})")
         inputs[key] = content_sha256(path, hashes)
-    stable = is_mesh_file(config.object) and config.object_options.pose == "stable"
+    stable = mesh_file_of(config.object) is not None and config.object_options.pose == "stable"
     inputs["object_rest"] = RESTING_RULE if stable else None
     return {**inputs, **library_versions()}
 

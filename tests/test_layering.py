@@ -266,7 +266,7 @@ def test_no_import_circle_anywhere():
 def _registries() -> dict[str, set[str]]:
     """The registered names of each registry, by the modules that own it (where its names may
     be compared: registering, validating, building)."""
-    from torchcontact import checkpoint, model, stiffness
+    from torchcontact import checkpoint, model, object_sources, stiffness
     from torchcontact.environments import ENVIRONMENTS, costs
     from torchcontact.mpc import models, planners
 
@@ -278,6 +278,7 @@ def _registries() -> dict[str, set[str]]:
         "torchcontact.environments": set(ENVIRONMENTS),
         "torchcontact.mpc.planners": set(planners.PLANNERS),
         "torchcontact.mpc.models": {*models.MPC_MODELS, *models.LEGACY_MODELS},
+        "torchcontact.object_sources": set(object_sources.OBJECT_SOURCES),
     }
 
 
@@ -310,3 +311,24 @@ def test_no_registered_name_is_compared_as_a_string_outside_its_registry():
             if text in names and text not in allowed
         ]
     assert not found, "registered names compared as strings:\n" + "\n".join(found)
+
+
+OBJECT_PARSERS = {"is_generated", "is_set", "seed_of", "expand", "is_mesh_file"}
+"""What tells an object's string apart: only :mod:`torchcontact.object_sources` (and the
+generated objects' own module) may call it; every other module asks the registry."""
+
+
+def test_object_strings_are_told_apart_by_their_registry_alone():
+    found = []
+    for module, path in _sources().items():
+        if module in ("torchcontact.object_sources", "torchcontact.generated"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            func = node.func if isinstance(node, ast.Call) else None
+            called = getattr(func, "attr", None) or getattr(func, "id", None)
+            via = getattr(getattr(func, "value", None), "id", None)
+            if called in OBJECT_PARSERS and (called == "is_mesh_file" or via == "generated"):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} calls {called}")
+    assert not found, "object strings parsed outside torchcontact.object_sources:\n" + "\n".join(
+        found
+    )

@@ -21,7 +21,8 @@ from torchcontact.environments.hands import ALLEGRO_ENV, PAPER_OBJECT_MASS, TRIF
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.trials import TrialConfig, config_from_flat, flat_config, object_facts
-from torchcontact.objects import ObjectOptions, is_mesh_file, resolve
+from torchcontact.object_sources import is_mesh_file
+from torchcontact.objects import ObjectOptions, resolve
 from torchcontact.shapes import MAX_MESH_EXTENT, OBJECT_SIZES, load_object, make_object
 from torchcontact.sim.fingertips import FingertipsEnv
 from torchcontact.sim.hands import HandEnv

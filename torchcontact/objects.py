@@ -1,5 +1,6 @@
-"""Which object a scene holds: a built-in name, a generated name or a mesh file, and the
-user's choice of its size, mass, friction and, for a mesh file, its pose.
+"""Which object a scene holds: a built-in name or one of a registered source (a generated
+name, a mesh file, a user's prefix: :mod:`torchcontact.object_sources`), and the user's choice
+of its size, mass, friction and, for an object from a mesh file, its pose.
 
 No MuJoCo here: :func:`resolve` returns the :class:`~torchcontact.shapes.ObjectMesh` a plant
 turns into a body. The same options reach it from the CLI (``--object-size``,
@@ -11,9 +12,8 @@ turns into a body. The same options reach it from the CLI (``--object-size``,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from torchcontact import generated
+from torchcontact.object_sources import mesh_file_of, object_source, sources_about
 from torchcontact.resting import Rest, rest_on_stable_face
 from torchcontact.shapes import (
     COLLISIONS,
@@ -86,11 +86,6 @@ class ObjectOptions:
         return self == ObjectOptions()
 
 
-def is_mesh_file(obj: object) -> bool:
-    """Whether ``obj`` names a mesh file (a path with a suffix; object names have none)."""
-    return isinstance(obj, (str, Path)) and bool(Path(obj).suffix)
-
-
 def resolve(
     obj,
     options: ObjectOptions | None = None,
@@ -101,14 +96,16 @@ def resolve(
     """The :class:`ObjectMesh` of ``obj`` under ``options``.
 
     Args:
-        obj: a built-in name (:data:`~torchcontact.shapes.OBJECT_SIZES`), a generated name
-            (``"random-SEED"``, :mod:`torchcontact.generated`), a mesh file or an
-            :class:`ObjectMesh` (used as it is; ``options`` must then be empty).
+        obj: a built-in name (:data:`~torchcontact.shapes.OBJECT_SIZES`), an object of a
+            registered source (:mod:`torchcontact.object_sources`: ``"random-SEED"``, a mesh
+            file, ``"PREFIX:NAME"``) or an :class:`ObjectMesh` (used as it is; ``options``
+            must then be empty).
         options: the user's size, scale and mass (friction is the plant's to apply).
         mass: the scene's mass [kg] where ``options.mass`` is None.
         listed_size: a built-in object's box (x, y, z) [m] in this scene (default its listed).
         collision: how it collides, see :func:`~torchcontact.shapes.make_object`; for a mesh
-            file ``"hull"`` keeps its convex hull and the others its default decomposition.
+            file's object ``"hull"`` keeps its convex hull and the others its default
+            decomposition.
     """
     if collision not in COLLISIONS:
         raise ValueError(f"collision must be one of {COLLISIONS}, got {collision!r}")
@@ -118,7 +115,8 @@ def resolve(
         if not options.is_default:
             raise ValueError("options must be empty for an ObjectMesh, which is used as it is")
         return obj
-    if options.pose != "stable" and not is_mesh_file(obj):
+    path = mesh_file_of(obj)
+    if options.pose != "stable" and path is None:
         raise ValueError(f"object pose {options.pose!r} is for a mesh file, got {obj!r}")
     if isinstance(obj, str) and obj in OBJECT_SIZES:
         box = OBJECT_SIZES[obj] if listed_size is None else listed_size
@@ -126,20 +124,20 @@ def resolve(
         size = box if factor is None else tuple(side * factor for side in box)
         _check_extent(obj, max(size))
         return make_object(obj, mass=mass, size=size, collision=collision)
-    if generated.is_generated(obj):
-        seed = generated.seed_of(obj)
-        made = generated.generate(seed, mass, options.size, options.scale, collision)
+    source = object_source(obj)
+    if source is not None and source.make is not None:
+        made = source.make(obj, mass, options.size, options.scale, collision)
         _check_extent(obj, float(max(made.size)))
         return made
-    if is_mesh_file(obj):
+    if path is not None:
         decomposition = "hull" if collision == "hull" else "auto"
         # named apart from the built-in objects, whose names key the paper's scene facts
-        name = f"mesh_{Path(obj).stem}"
-        loaded = load_object(obj, options.size, mass, decomposition, name, options.scale)
+        name = f"mesh_{path.stem}"
+        loaded = load_object(path, options.size, mass, decomposition, name, options.scale)
         return loaded if options.pose == "as-is" else mesh_rest(loaded).obj
     raise ValueError(
-        f"obj must be a built-in object among {tuple(OBJECT_SIZES)}, a generated object "
-        f"('random-SEED'), a mesh file or an ObjectMesh, got {obj!r}"
+        f"obj must be a built-in object among {tuple(OBJECT_SIZES)}, {sources_about()}, or "
+        f"an ObjectMesh, got {obj!r}"
     )
 
 
@@ -157,12 +155,13 @@ def mesh_rest(obj: ObjectMesh) -> Rest:
 def describe_pose(obj, options: ObjectOptions | None = None, collision: str = "auto") -> str:
     """How :func:`resolve` poses ``obj`` under ``options``, in words (for a run's header)."""
     options = ObjectOptions() if options is None else options
-    if not is_mesh_file(obj):
+    path = mesh_file_of(obj)
+    if path is None:
         return "rests as made"
     if options.pose == "as-is":
         return "posed as in its file"
     decomposition = "hull" if collision == "hull" else "auto"
-    loaded = load_object(obj, options.size, DEFAULT_MASS, decomposition, scale=options.scale)
+    loaded = load_object(path, options.size, DEFAULT_MASS, decomposition, scale=options.scale)
     return mesh_rest(loaded).describe()
 
 

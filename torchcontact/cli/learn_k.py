@@ -75,7 +75,7 @@ from torchcontact.model import paper_model
 from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.trials import library_versions
-from torchcontact.objects import is_mesh_file
+from torchcontact.object_sources import mesh_file_of
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend, parallel_map
 from torchcontact.results import (
     atomic_write,
@@ -353,9 +353,10 @@ def _check_scene(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         objects += [obj for _, obj in pairs]
     args.objects = list(dict.fromkeys(objects))
     for obj in args.objects:  # read each mesh file once, before anything is collected
-        if is_mesh_file(obj):
+        path = mesh_file_of(obj)
+        if path is not None:
             try:
-                load_object(obj, decomposition="hull")
+                load_object(path, decomposition="hull")
             except ValueError as error:
                 parser.error(f"--object {obj!r} must be a usable mesh file: {error}")
 
@@ -377,12 +378,12 @@ def _check_split(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
 
 
 def dataset_dir(args: argparse.Namespace, obj: str) -> Path:
-    """The dataset folder of object ``obj`` under ``--data``: a mesh file's holds 8 hex digits
-    of its content's SHA-256 (``cube-mesh-1a2b3c4d``), so a changed mesh gets data of its own
-    and a user's ``cube.stl`` never shares the built-in cube's."""
-    name = Path(obj).stem
-    if is_mesh_file(obj) and Path(obj).is_file():
-        name = f"{name}-mesh-{content_sha256(obj)[:8]}"
+    """The dataset folder of object ``obj`` under ``--data``: an object from a mesh file (a
+    path, or a registered source's) has 8 hex digits of the file's SHA-256 in it
+    (``cube-mesh-1a2b3c4d``), so a changed mesh gets data of its own and a user's ``cube.stl``
+    never shares the built-in cube's."""
+    path = mesh_file_of(obj)
+    name = obj if path is None else f"{path.stem}-mesh-{content_sha256(path)[:8]}"
     return args.data / f"{args.scene}_{name}_{args.actions}_steps{args.steps}_seed{args.seed}"
 
 

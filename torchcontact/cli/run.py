@@ -46,7 +46,8 @@ from torchcontact.mpc.trials import (
     run_trials,
     trial_configs,
 )
-from torchcontact.objects import ObjectOptions, describe_pose, is_mesh_file, mesh_rest
+from torchcontact.object_sources import canonical_object, mesh_file_of
+from torchcontact.objects import ObjectOptions, describe_pose, mesh_rest
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
 from torchcontact.results import (
     locked_folder,
@@ -77,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="a built-in object, 'all', or (hands, custom) a mesh file in metres, a generated "
         f"object random-SEED, or a set of them: random:N (N objects from seed "
         f"{generated.REPORT_SEEDS}, the reported set) or random:A-B (seeds A to B; tune on "
-        f"seeds below {generated.REPORT_SEEDS}); several, comma-separated",
+        f"seeds below {generated.REPORT_SEEDS}), or PREFIX:NAME of a source a module "
+        f"registers (register_object_source, {IMPORT}); several, comma-separated",
     )
     parser.add_argument(
         "--trials", type=int, default=TRIALS, help="seeds first-seed…first-seed+trials−1"
@@ -100,8 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
         dest="env_module",
         default=None,
         metavar="MODULE",
-        help="a module or .py file that registers environments (register_environment), to "
-        "run one by its name",
+        help="a module or .py file that registers environments (register_environment) or "
+        "object sources (register_object_source), to run them by name",
     )
     parser.add_argument(
         "--preset",
@@ -232,13 +234,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args.robot = None if args.robot is None else str(args.robot.resolve())
     try:
         env = environment(args.env, args.robot, args.tips, args.robot_options)
-        # a mesh file by its absolute path: one record name however it was typed
-        args.pairs = [
-            (task, str(Path(obj).resolve()) if is_mesh_file(obj) else obj)
-            for task, obj in env.select(args.task, args.object)
-        ]
+        pairs = env.select(args.task, args.object)
+        args.pairs = [(task, canonical_object(obj)) for task, obj in pairs]
         pose = args.object_options.pose
-        named = [obj for _, obj in args.pairs if not is_mesh_file(obj)]
+        named = [obj for _, obj in args.pairs if mesh_file_of(obj) is None]
         if pose != "stable" and named:
             raise ValueError(f"--object-pose {pose} is for mesh files, got {named[0]!r}")
         if not env.user_meshes and not args.object_options.is_default:
@@ -271,9 +270,11 @@ def _load_inputs(args: argparse.Namespace, env) -> None:
         except ValueError as error:
             raise ValueError(f"--learned: {error}") from None
     options = args.object_options
-    for obj in sorted({obj for _, obj in args.pairs if is_mesh_file(obj)}):
+    for obj in sorted({obj for _, obj in args.pairs if mesh_file_of(obj) is not None}):
         try:
-            loaded = load_object(obj, options.size, decomposition="hull", scale=options.scale)
+            loaded = load_object(
+                mesh_file_of(obj), options.size, decomposition="hull", scale=options.scale
+            )
             if options.pose == "stable":
                 mesh_rest(loaded)
         except ValueError as error:
@@ -309,7 +310,7 @@ def describe_objects(args: argparse.Namespace, at_most: int = 4) -> list[str]:
             f"object {Path(obj).name}: {extent} cm, {1e3 * facts['object_mass_kg']:g} g, "
             f"friction {facts['object_friction_mu']:g}, collides as {facts['object_collision']}"
         )
-        if is_mesh_file(obj):
+        if mesh_file_of(obj) is not None:
             lines[-1] += f"; {describe_pose(obj, args.object_options, args.collision)}"
         lines += env.describe(plant)
     if len(objects) > at_most:

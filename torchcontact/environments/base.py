@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchcontact import generated
 from torchcontact.environments import tasks
 from torchcontact.environments.costs import Cost
 from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import DEFAULT_PRESET, NAMES, MPCSettings
 from torchcontact.integrate import JointLayout
-from torchcontact.objects import ObjectOptions, is_mesh_file
+from torchcontact.object_sources import expand_objects, sources_about
+from torchcontact.objects import ObjectOptions
 from torchcontact.shipped import shipped_environments
 from torchcontact.sim.plant import Plant
 from torchcontact.systems import GRAVITY, QuasiDynamic
@@ -193,11 +193,11 @@ class Environment:
 
     def select(self, task: str, obj: str) -> list[tuple[str, str]]:
         """The pairs matching ``task`` and ``obj`` (each a name or ``"all"``; where
-        :attr:`user_meshes`, ``obj`` may also be a mesh path, a generated object
-        ``"random-SEED"`` or a set of them, ``"random:N"`` or ``"random:A-B"``, see
-        :func:`torchcontact.generated.expand`); a comma-separated list of these takes their
-        union in order (``"cube,random-7,random:0-9"``). Raises ``ValueError`` naming the bad
-        option."""
+        :attr:`user_meshes`, ``obj`` may also name objects of a registered source, see
+        :mod:`torchcontact.object_sources`: a mesh path, a generated object ``"random-SEED"``
+        or a set of them, ``"random:N"`` or ``"random:A-B"``, a user's ``"PREFIX:NAME"``);
+        a comma-separated list of these takes their union in order
+        (``"cube,random-7,random:0-9"``). Raises ``ValueError`` naming the bad option."""
         if "," in obj and not Path(obj).is_file():  # a mesh file's name may hold a comma
             parts = [self.select(task, part.strip()) for part in obj.split(",")]
             return list(dict.fromkeys(pair for part in parts for pair in part))
@@ -208,7 +208,7 @@ class Environment:
             if objects:
                 return [(t, o) for o in objects for t in self.tasks if task in ("all", t)]
         if obj not in ("all", *self.objects):
-            also = ", a mesh file or random:N" if self.user_meshes else ""
+            also = f"; {sources_about()}" if self.user_meshes else ""
             raise ValueError(f"--object must be one of {self.objects}, 'all'{also}, got {obj!r}")
         pairs = [(t, o) for t, o in self.pairs if task in ("all", t) and obj in ("all", o)]
         if not pairs:
@@ -217,20 +217,14 @@ class Environment:
 
     @staticmethod
     def _user_objects(obj: str) -> list[str]:
-        """The objects ``obj`` names beyond the built-in ones: a mesh file, a generated object
-        or a set of them; none where it names none of these."""
-        if generated.is_set(obj):
-            try:
-                return generated.expand(obj)
-            except ValueError as error:
-                raise ValueError(f"--object: {error}") from None
-        if generated.is_generated(obj):
-            return [obj]
-        if is_mesh_file(obj):
-            if not Path(obj).is_file():
-                raise ValueError(f"--object must be an existing mesh file, got {obj!r}")
-            return [obj]
-        return []
+        """The objects ``obj`` names through a registered source; none where no source claims
+        it."""
+        try:
+            return expand_objects(obj) or []
+        except ValueError as error:
+            message = str(error)  # named as the option, as select's other refusals are
+            named = message.startswith("object ")
+            raise ValueError(f"--{message}" if named else f"--object: {message}") from None
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
