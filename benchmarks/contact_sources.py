@@ -26,7 +26,8 @@ from tqdm.auto import tqdm  # noqa: E402
 
 from torchcontact.environments import environment  # noqa: E402
 from torchcontact.environments.presets import GAPS  # noqa: E402
-from torchcontact.mpc.trials import build_trial, trial_configs  # noqa: E402
+from torchcontact.mpc.trial_config import trial_configs  # noqa: E402
+from torchcontact.mpc.trials import build_trial  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 
 

@@ -36,7 +36,7 @@ from torchcontact.model import paper_model  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 from torchcontact.sim.detect import ContactDetector  # noqa: E402
 from torchcontact.sim.geometry import scene_geometry  # noqa: E402
-from torchcontact.sim.hands import HandEnv  # noqa: E402
+from torchcontact.sim.hands import HandPlant  # noqa: E402
 
 OTHERS = {"plane": "ground", "sphere": "sphere", "capsule": "capsule", "box": "box"}
 
@@ -109,7 +109,7 @@ def _timed(call, repeat: int) -> float:
 
 
 def speed(batches: list[int], steps: int, compile_: bool) -> tuple[list[dict], list[dict]]:
-    env = HandEnv("trifinger", "cube")
+    env = HandPlant("trifinger", "cube")
     description = environment("trifinger")
     geometry = scene_geometry(env.detector, dtype=torch.float64)
     system = description.system(env).double()

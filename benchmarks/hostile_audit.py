@@ -1247,7 +1247,9 @@ RECORD_DAMAGE = {
 def results_cases(files: Files) -> Iterator[Case]:
     from torchcontact.cli.compare import compare_runs
     from torchcontact.environments.presets import MPCSettings
-    from torchcontact.mpc.trials import record_status, run_trials, trial_configs, trial_inputs
+    from torchcontact.mpc.records import record_status
+    from torchcontact.mpc.trial_config import trial_configs, trial_inputs
+    from torchcontact.mpc.trials import run_trials
 
     area = "results on disk"
     (config,) = trial_configs(
@@ -1557,7 +1559,7 @@ def _trial_call(args: tuple, kwargs: dict):
 
     def call():
         from torchcontact.mpc.model_options import ModelOptions
-        from torchcontact.mpc.trials import trial_configs
+        from torchcontact.mpc.trial_config import trial_configs
 
         options = dict(kwargs)
         if "model" in options:
@@ -1571,7 +1573,8 @@ def trial_cases(files: Files) -> Iterator[Case]:
     from torchcontact.environments import CostOptions, environment
     from torchcontact.environments.presets import MPCSettings
     from torchcontact.mpc.controller import ContactImplicitMPC
-    from torchcontact.mpc.trials import run_trials, trial_configs
+    from torchcontact.mpc.trial_config import trial_configs
+    from torchcontact.mpc.trials import run_trials
 
     area = "trial API and from_env"
     pair = [("rotation", "cube")]

@@ -34,7 +34,8 @@ import torch  # noqa: E402
 
 from torchcontact.environments import environment  # noqa: E402
 from torchcontact.mpc.controller import ContactImplicitMPC  # noqa: E402
-from torchcontact.mpc.trials import trial_configs, trial_model  # noqa: E402
+from torchcontact.mpc.trial_config import trial_configs  # noqa: E402
+from torchcontact.mpc.trials import trial_model  # noqa: E402
 from torchcontact.results import write_json  # noqa: E402
 
 torch.set_num_threads(1)

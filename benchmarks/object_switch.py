@@ -31,7 +31,8 @@ def run_mode(env: str, objects: list[str], steps: int, reset: bool) -> list[dict
     from torch._dynamo.utils import counters
 
     from torchcontact.environments import environment
-    from torchcontact.mpc.trials import build_trial, run_trial, trial_configs
+    from torchcontact.mpc.trial_config import trial_configs
+    from torchcontact.mpc.trials import build_trial, run_trial
 
     task = environment(env).tasks[0]
     configs = trial_configs(env, [(task, obj) for obj in objects], [0], max_steps=steps)

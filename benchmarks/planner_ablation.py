@@ -24,11 +24,12 @@ from pathlib import Path  # noqa: E402
 
 from torchcontact.environments import environment  # noqa: E402
 from torchcontact.mpc.report import summarize  # noqa: E402
-from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
+from torchcontact.mpc.trial_config import trial_configs  # noqa: E402
+from torchcontact.mpc.trials import run_trials  # noqa: E402
 from torchcontact.results import write_csv, write_json  # noqa: E402
 
 VARIANTS = {"lbfgs": {"planner": "lbfgs"}, "hybrid": {"planner": "hybrid"}}
-"""Variants by name: the :class:`~torchcontact.mpc.trials.TrialConfig` fields they set, as
+"""Variants by name: the :class:`~torchcontact.mpc.trial_config.TrialConfig` fields they set, as
 ``torchcontact run ENV --planner P`` does (the rest the environment's defaults)."""
 
 

@@ -25,7 +25,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from torchcontact.mpc.model_options import ModelOptions  # noqa: E402
 from torchcontact.mpc.report import SUMMARY_KEYS, summarize  # noqa: E402
-from torchcontact.mpc.trials import run_trials, trial_configs  # noqa: E402
+from torchcontact.mpc.trial_config import trial_configs  # noqa: E402
+from torchcontact.mpc.trials import run_trials  # noqa: E402
 from torchcontact.results import save_figure, write_csv, write_json  # noqa: E402
 
 STIFFNESS = (1e-3, 1e-2, 0.1, 0.3, 1.0, 3.0, 10.0, 100.0)

@@ -28,7 +28,7 @@ from torchcontact.integrate import JointLayout
 from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.sim import box_pushing as bp
 from torchcontact.sim.box_pushing import BoxPushingPlant
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 from torchcontact.sim.plant import Plant
 from torchcontact.stiffness import Constant, Relative
 from torchcontact.systems import QuasiDynamic
@@ -89,10 +89,9 @@ class Scene:
     @property
     def control_dt(self) -> float:
         """Simulated time per step [s] (MuJoCo substeps × their time step)."""
-        skip = (
-            self.plant.hand.frame_skip if isinstance(self.plant, HandEnv) else self.plant.frame_skip
-        )
-        return skip * float(self.plant.model.opt.timestep)
+        plant = self.plant
+        skip = plant.hand.frame_skip if isinstance(plant, HandPlant) else plant.frame_skip
+        return skip * float(plant.model.opt.timestep)
 
     @property
     def pose_weights(self) -> tuple[float, float]:

@@ -2,7 +2,7 @@
 
 Each field is the one home of its setting: ``torchcontact run`` generates its option from it
 (:mod:`torchcontact.cli.options`), a trial's configuration holds it
-(:class:`~torchcontact.mpc.trials.TrialConfig`) and :meth:`ModelOptions.build` makes the model
+(:class:`~torchcontact.mpc.trial_config.TrialConfig`) and :meth:`ModelOptions.build` makes the model
 of it. A trial holds the part :meth:`ModelOptions.resolved` for its environment: its K a number
 or its learned model named, never ``"paper"`` or ``"shipped"`` as a K.
 """
@@ -57,7 +57,7 @@ class ModelOptions:
             "help": "contact model the MPC plans through: "
             + "; ".join(f"{name} ({m.about})" for name, m in MPC_MODELS.items())
             + f"; default {DEFAULT_MODEL}",
-            "choices": tuple(MPC_MODELS),
+            "choices": MPC_MODELS,  # the live registry: a model registered later is a choice
         },
     )
     stiffness: float | str | None = field(
@@ -130,9 +130,12 @@ class ModelOptions:
         ``env``'s K, and nothing given as ``env``'s default model
         (:func:`~torchcontact.mpc.models.default_model_fields`). ``ValueError`` naming the
         field when ``env`` ships no model, or the checkpoint is missing."""
-        kappa = mpc_model(self.model).relaxation
-        if kappa is not None:
-            return replace(self, relaxation=kappa if self.relaxation is None else self.relaxation)
+        spec = mpc_model(self.model)
+        if spec.relaxation is not None:
+            relaxation = spec.relaxation if self.relaxation is None else self.relaxation
+            return replace(self, relaxation=relaxation)
+        if not spec.stiffness:
+            return self  # a registered model taking neither K nor κ
         if self.stiffness == SHIPPED:
             if not env.ships_model:
                 raise ValueError(f"stiffness {SHIPPED}: {env.name} ships no model")
@@ -155,8 +158,11 @@ class ModelOptions:
 
     def describe(self, env: str) -> str:
         """One line for a run's header: the model and where its K comes from."""
-        if mpc_model(self.model).relaxation is not None:
+        spec = mpc_model(self.model)
+        if spec.relaxation is not None:
             return f"{self.model}, paper's κ = {self.relaxation:g}"
+        if not spec.stiffness:
+            return spec.about
         if self.learned == SHIPPED:
             return f"learned K(q), D(q) shipped with the package: {shipped_path(env)}"
         if self.learned is not None:

@@ -15,6 +15,7 @@ from torchcontact.environments.base import Environment
 from torchcontact.model import ComplementarityFree, ContactModel, RelaxedQP, contact_model
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.shipped import SHIPPED, resolve_learned
+from torchcontact.validation import register
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,19 @@ MPC_MODELS: dict[str, MPCModel] = {
     )
 }
 """Models a trial may name (a learned K(q), D(q) comes with ``learned``, on the paper model)."""
+
+
+def register_mpc_model(model: MPCModel) -> MPCModel:
+    """Make ``model`` a model a trial, ``ContactImplicitMPC`` and ``torchcontact run --model``
+    (from a module ``--import`` names) may plan through, under ``model.name``, which must be
+    new. Returns it."""
+    register(MPC_MODELS, getattr(model, "name", None), model, "MPC model", _is_model)
+    return model
+
+
+def _is_model(entry) -> bool:
+    return isinstance(entry, MPCModel)
+
 
 DEFAULT_MODEL = "paper"
 """The contact model the MPC plans through unless told otherwise."""

@@ -1,6 +1,6 @@
 """Reporting a sweep's trial records: summary statistics, the per-trial table, CSV rows, the
 paper-style figure and GIFs. Records are the dicts of
-:meth:`~torchcontact.mpc.trials.TrialRecord.to_dict` (older ones may lack later keys)."""
+:meth:`~torchcontact.mpc.trial_config.TrialRecord.to_dict` (older ones may lack later keys)."""
 
 from __future__ import annotations
 

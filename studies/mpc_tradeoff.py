@@ -29,7 +29,8 @@ from studies import report
 from torchcontact.environments import environment
 from torchcontact.environments.presets import NAMES, PAPER, MPCSettings
 from torchcontact.mpc.report import summarize
-from torchcontact.mpc.trials import run_trials, trial_configs
+from torchcontact.mpc.trial_config import trial_configs
+from torchcontact.mpc.trials import run_trials
 from torchcontact.parallel import BACKENDS
 from torchcontact.results import pareto_front, read_json
 

@@ -11,7 +11,7 @@ import pytest
 
 from torchcontact.cli import main
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.mpc.trials import TrialRecord, trial_configs, trial_inputs
+from torchcontact.mpc.trial_config import TrialRecord, trial_configs, trial_inputs
 from torchcontact.results import write_json
 from torchcontact.shipped import shipped_path
 

@@ -12,7 +12,8 @@ from scipy.stats import binomtest
 from torchcontact.cli import main as cli_main
 from torchcontact.cli.compare import compare_runs, load_run, mcnemar_p
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.mpc.trials import run_trials, trial_configs
+from torchcontact.mpc.trial_config import trial_configs
+from torchcontact.mpc.trials import run_trials
 from torchcontact.results import write_json
 
 FAST = trial_configs(

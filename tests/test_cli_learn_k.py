@@ -1,6 +1,5 @@
 """``torchcontact learn-k``: a tiny end-to-end run writes its results and headline JSON."""
 
-import argparse
 import math
 
 import pytest
@@ -9,7 +8,7 @@ import torch
 from torchcontact.calibration import PARTS
 from torchcontact.checkpoint import load_checkpoint
 from torchcontact.cli import learn_k, main
-from torchcontact.cli.learn_k import RESULTS_LABEL_LIMIT, parse_args
+from torchcontact.cli.learn_config import RESULTS_LABEL_LIMIT, build_parser, parse_config
 from torchcontact.cli.split_store import split_digest
 from torchcontact.mpc.trials import TrialRecord, trial_model
 from torchcontact.results import read_json
@@ -185,32 +184,34 @@ def test_a_rerun_fits_only_the_splits_it_lacks(tmp_path, monkeypatch):
 
 
 def test_objects_are_listed_once_in_order():
-    args = parse_args(["--scene", "fingertips", "--object", "cube,stick,cube,bunny"])
-    assert args.objects == ["cube", "stick", "bunny"] and args.split == "objects"
-    args = parse_args(["--scene", "allegro", "--object", "all,random:3-4"])
-    assert len(args.objects) == 19 and args.objects[-2:] == ["random-3", "random-4"]
+    config = parse_config(["--scene", "fingertips", "--object", "cube,stick,cube,bunny"])
+    assert config.objects == ("cube", "stick", "bunny") and config.split == "objects"
+    config = parse_config(["--scene", "allegro", "--object", "all,random:3-4"])
+    assert len(config.objects) == 19 and config.objects[-2:] == ("random-3", "random-4")
 
 
 def test_a_long_object_list_gets_a_short_unique_results_folder(tmp_path):
     names = [f"random-{seed}" for seed in range(60)]
-    args = parse_args(["--scene", "trifinger", "--object", ",".join(names), "--out", str(tmp_path)])
-    other = parse_args(["--scene", "trifinger", "--object", ",".join(names[1:] + names[:1])])
-    assert len(args.results.name) <= len("trifinger_") + RESULTS_LABEL_LIMIT
-    assert args.results.name != other.results.name  # the digest tells the lists apart
-    args.results.mkdir()  # a name the file system takes
-    short = parse_args(["--scene", "trifinger", "--object", "all,random:0-51"])
+    config = parse_config(
+        ["--scene", "trifinger", "--object", ",".join(names), "--out", str(tmp_path)]
+    )
+    other = parse_config(["--scene", "trifinger", "--object", ",".join(names[1:] + names[:1])])
+    assert len(config.results.name) <= len("trifinger_") + RESULTS_LABEL_LIMIT
+    assert config.results.name != other.results.name  # the digest tells the lists apart
+    config.results.mkdir()  # a name the file system takes
+    short = parse_config(["--scene", "trifinger", "--object", "all,random:0-51"])
     assert short.results.name == "trifinger_all_random_0-51"
 
 
 def test_each_scene_fits_its_measured_factors_by_default():
     """The TriFinger adds the object's momentum; the Allegro leaves μ alone (a fitted μ doubled
     its falls in closed loop); an explicit list is kept as given."""
-    assert parse_args(["--scene", "trifinger"]).calibrate == (*PARTS, "object_momentum")
-    allegro = parse_args(["--scene", "allegro"]).calibrate
+    assert parse_config(["--scene", "trifinger"]).fit.calibrate == (*PARTS, "object_momentum")
+    allegro = parse_config(["--scene", "allegro"]).fit.calibrate
     assert "friction" not in allegro and set(allegro) == set(PARTS) - {"friction"}
-    assert parse_args(["--scene", "fingertips"]).calibrate == PARTS
-    chosen = parse_args(["--scene", "allegro", "--calibrate", "friction,command_gain"])
-    assert chosen.calibrate == ("friction", "command_gain")
+    assert parse_config(["--scene", "fingertips"]).fit.calibrate == PARTS
+    chosen = parse_config(["--scene", "allegro", "--calibrate", "friction,command_gain"])
+    assert chosen.fit.calibrate == ("friction", "command_gain")
 
 
 def test_an_object_split_needs_three_objects(capsys):
@@ -266,22 +267,24 @@ def test_residual_is_fitted_second_and_drives_the_mpc(tmp_path, capsys):
 
 
 def test_loss_contacts_option_is_checked_and_frozen_keeps_the_old_digest(capsys):
-    args = parse_args(["--object", "cube"])
-    assert args.loss_contacts == "frozen"
+    config = parse_config(["--object", "cube"])
+    assert config.fit.loss_contacts == "frozen"
     with pytest.raises(SystemExit):
-        parse_args(["--object", "cube", "--loss-contacts", "geometry"])
+        parse_config(["--object", "cube", "--loss-contacts", "geometry"])
     err = capsys.readouterr().err
     assert "--loss-contacts geometry needs --loss-horizon 2 or more" in err
     with pytest.raises(SystemExit):
-        parse_args(["--object", "cube", "--loss-contacts", "detector", "--loss-horizon", "2"])
+        parse_config(["--object", "cube", "--loss-contacts", "detector", "--loss-horizon", "2"])
     assert "--loss-contacts: invalid choice: 'detector'" in capsys.readouterr().err
-    # frozen: the digest of the options before the option existed, so old records are reused
-    before = argparse.Namespace(**{k: v for k, v in vars(args).items() if k != "loss_contacts"})
-    assert split_digest(learn_k.deciding_options(args), []) == split_digest(before, [])
-    geometry = parse_args(
+    geometry = parse_config(
         ["--object", "cube", "--loss-contacts", "geometry", "--loss-horizon", "2"]
     )
-    frozen = parse_args(["--object", "cube", "--loss-horizon", "2"])
+    # the digest reads every option by its name and what they resolve to, as the saved
+    # records' digests did; frozen, as before the option existed, so old records are reused
+    options = set(vars(build_parser().parse_args([]))) | {"objects", "grid", "results"}
+    assert set(vars(learn_k.deciding_options(geometry))) == options
+    assert set(vars(learn_k.deciding_options(config))) == options - {"loss_contacts"}
+    frozen = parse_config(["--object", "cube", "--loss-horizon", "2"])
     assert split_digest(learn_k.deciding_options(geometry), []) != split_digest(
         learn_k.deciding_options(frozen), []
     )

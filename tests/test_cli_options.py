@@ -14,15 +14,15 @@ from torchcontact.cli.options import add_options, option_name, options_object
 from torchcontact.cli.run import build_parser, configs_of, parse_args
 from torchcontact.environments import CostOptions, RobotOptions, environment
 from torchcontact.environments.presets import MPCSettings
-from torchcontact.mpc.trials import (
+from torchcontact.mpc.records import record_problem
+from torchcontact.mpc.trial_config import (
     RECORD_KEYS,
     RECORD_PARTS,
-    build_trial,
     config_from_flat,
     flat_config,
-    record_problem,
     stored_config,
 )
+from torchcontact.mpc.trials import build_trial
 from torchcontact.objects import ObjectOptions
 
 FINGER = ["custom", "--robot", "examples/planar_finger.xml", "--object", "cube"]
@@ -136,7 +136,7 @@ def _outcome() -> dict:
 
 
 def test_trial_configs_takes_the_parts_typed():
-    from torchcontact.mpc.trials import trial_configs
+    from torchcontact.mpc.trial_config import trial_configs
 
     with pytest.raises(TypeError, match="^cost_options must be CostOptions, got dict"):
         trial_configs("trifinger", [("in-hand", "cube")], [0], cost_options={"hold_first": 1})
@@ -145,7 +145,7 @@ def test_trial_configs_takes_the_parts_typed():
     (held,) = trial_configs(
         "trifinger", [("in-hand", "cube")], [0], cost_options=CostOptions(hold_first=1)
     )
-    assert held.cost_options == CostOptions(1, environment("trifinger").hold_approach)
+    assert held.cost_options == CostOptions(1, environment("trifinger").cost_defaults.hold_approach)
     assert isinstance(held.object_options, ObjectOptions)
 
 

@@ -10,7 +10,8 @@ from torchcontact.environments import environment
 from torchcontact.environments.fingertips import PAPER_STIFFNESS, STIFFNESS
 from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.report import SUMMARY_KEYS
-from torchcontact.mpc.trials import SCENES_VERSION, TrialConfig, build_trial
+from torchcontact.mpc.trial_config import SCENES_VERSION, TrialConfig
+from torchcontact.mpc.trials import build_trial
 from torchcontact.relaxed_qp import PAPER_RELAXATION
 
 ARGS = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "1"]

@@ -26,7 +26,7 @@ from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.planners import PLANNERS, PlannerResult, register_planner
 from torchcontact.mpc.trials import run_trial
 from torchcontact.objects import ObjectOptions
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 
 GRIPPER = Path(__file__).resolve().parents[1] / "examples" / "two_finger_gripper.xml"
 EAGER = MPCSettings(max_iter=10, compile=False)
@@ -62,7 +62,7 @@ def test_an_environments_mpc_plans_within_its_box(name):
 def test_a_user_robots_model_takes_the_object_mass_from_the_plant():
     env = _gripper()
     light = env.make_plant("cube")
-    heavy = HandEnv(env.hand, "cube", options=ObjectOptions(mass=0.05))
+    heavy = HandPlant(env.hand, "cube", options=ObjectOptions(mass=0.05))
     Q_light, b_light = env.system(light)(torch.zeros(4, dtype=torch.float64))
     Q_heavy, b_heavy = env.system(heavy)(torch.zeros(4, dtype=torch.float64))
     torch.testing.assert_close(Q_heavy[:6], 5 * Q_light[:6])
@@ -100,7 +100,7 @@ def test_a_user_robot_from_its_mjcf_pushes_a_cube_to_its_target_closed_loop():
     initial, target = env.sample(plant, "reposition", 0)
     assert target[1] - initial[1] >= 0.01  # a push of 1-1.5 cm along y (the finger reaches 2 cm)
     from torchcontact.mpc.model_options import ModelOptions
-    from torchcontact.mpc.trials import TrialConfig
+    from torchcontact.mpc.trial_config import TrialConfig
 
     config = TrialConfig(
         env="gripper", task="reposition", object="cube", seed=0, max_steps=150,

@@ -10,7 +10,7 @@ import torch
 
 from torchcontact.environments import environment
 from torchcontact.environments.costs import ManipulationCost, raised
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 
 F64 = torch.float64
 
@@ -18,8 +18,8 @@ F64 = torch.float64
 def test_tip_clearance_is_the_depth_of_the_sites_inside_their_tip_geoms():
     """TriFinger: each site is the centre of a 1 cm sphere. Allegro: the sites lie inside
     capsules of radius 12 mm, the thumb's 11 mm from its end-cap centre (the MJCF)."""
-    assert HandEnv("trifinger", "cube").tip_clearance == pytest.approx(0.01)
-    assert HandEnv("allegro", "cube").tip_clearance == pytest.approx(0.001)
+    assert HandPlant("trifinger", "cube").tip_clearance == pytest.approx(0.01)
+    assert HandPlant("allegro", "cube").tip_clearance == pytest.approx(0.001)
 
 
 def test_raised_lifts_only_what_lies_below_the_floor():
@@ -66,6 +66,6 @@ def test_the_floor_changes_nothing_for_an_object_centred_above_it():
 
 def test_the_trifinger_cost_floors_its_tips_at_the_height_of_a_resting_tip():
     env = environment("trifinger")
-    plant = HandEnv("trifinger", "random-31")
+    plant = HandPlant("trifinger", "random-31")
     assert env.cost(plant).contact_floor == pytest.approx(plant.support_height + 0.01)
     assert ManipulationCost().contact_floor is None  # the paper's cost is unchanged

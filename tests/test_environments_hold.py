@@ -14,14 +14,9 @@ from torchcontact.contacts import Contacts
 from torchcontact.environments import CostOptions, environment
 from torchcontact.environments.costs import HOLDING_DISTANCE, HoldFirst, ManipulationCost
 from torchcontact.environments.hands import tips_before_sliding
-from torchcontact.mpc.trials import (
-    LEGACY_DEFAULTS,
-    build_trial,
-    flat_config,
-    stored_config,
-    trial_configs,
-)
-from torchcontact.sim.hands import HandEnv
+from torchcontact.mpc.trial_config import LEGACY_DEFAULTS, flat_config, stored_config, trial_configs
+from torchcontact.mpc.trials import build_trial
+from torchcontact.sim.hands import HandPlant
 
 F64 = torch.float64
 NV = 15
@@ -141,7 +136,7 @@ def test_until_held_the_approach_weighs_the_contact_term(dtype):
 
 def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     env = environment("trifinger")
-    tall, wide = HandEnv("trifinger", "water_bottle"), HandEnv("trifinger", "cube")
+    tall, wide = HandPlant("trifinger", "water_bottle"), HandPlant("trifinger", "cube")
     assert tips_before_sliding(tall.object) and not tips_before_sliding(wide.object)
     cost = env.cost(tall, CostOptions(hold_first=3))
     assert isinstance(cost, ManipulationCost) and cost.hold.grip == 3
@@ -155,18 +150,18 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
     assert torch.equal(aim, target.expand(2, 3))  # the target, as without a hold
     assert float(off.contact_weight(start)) == 1.0
     assert env.cost(tall, CostOptions(hold_first=0)).hold is None
-    assert env.cost(tall).hold.grip == env.hold_first == 2  # the TriFinger's default
+    assert env.cost(tall).hold.grip == env.cost_defaults.hold_first == 2  # the TriFinger's default
     # the repr keys the compiled graphs: one graph for every held object
     assert repr(cost.hold) == repr(
-        env.cost(HandEnv("trifinger", "binoculars"), CostOptions(hold_first=3)).hold
+        env.cost(HandPlant("trifinger", "binoculars"), CostOptions(hold_first=3)).hold
     )
     for value in (-1, 1.5, True):
         with pytest.raises(ValueError, match="hold_first must be a number of contacts >= 0"):
             env.cost(tall, CostOptions(hold_first=value))
     fingertips = environment("fingertips")
-    with pytest.raises(ValueError, match="hold_first: the fingertips keep the paper's cost"):
+    with pytest.raises(ValueError, match="hold_first: the fingertips cost has no such term"):
         fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_first=2))
-    with pytest.raises(ValueError, match="hold_approach: the fingertips keep the paper's cost"):
+    with pytest.raises(ValueError, match="hold_approach: the fingertips cost has no such term"):
         fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_approach=4.0))
     assert (
         fingertips.cost(fingertips.make_plant("cube"), CostOptions(hold_approach=1.0)).hold is None
@@ -174,11 +169,12 @@ def test_the_hands_hold_the_objects_that_tip_before_they_slide():
 
 
 def test_the_hands_weigh_the_approach_to_a_hold():
-    env, tall = environment("trifinger"), HandEnv("trifinger", "water_bottle")
+    env, tall = environment("trifinger"), HandPlant("trifinger", "water_bottle")
     hold = env.cost(tall, CostOptions(hold_first=2, hold_approach=3.0)).hold
     assert hold.approach == 3.0
-    assert env.cost(tall, CostOptions(hold_first=2)).hold.approach == env.hold_approach
-    with pytest.raises(ValueError, match="hold_approach: it weighs the approach to a hold"):
+    defaults = env.cost_defaults
+    assert env.cost(tall, CostOptions(hold_first=2)).hold.approach == defaults.hold_approach
+    with pytest.raises(ValueError, match="hold_approach: it applies with hold_first only; set"):
         env.cost(tall, CostOptions(hold_first=0, hold_approach=3.0))
     for value in (0.0, -1.0, math.inf, math.nan):
         with pytest.raises(ValueError, match="hold_approach must be a weight > 0"):
@@ -192,7 +188,7 @@ def test_a_trial_plans_with_its_hold():
     _, _, mpc = build_trial(configs[0])
     assert mpc.cost.hold is not None and mpc.cost.hold.grip == 2
     default = trial_configs("trifinger", [("in-hand", "cube")], [0])[0]
-    assert default.cost_options.hold_first == environment("trifinger").hold_first
+    assert default.cost_options.hold_first == environment("trifinger").cost_defaults.hold_first
     fingertips = trial_configs("fingertips", [("rotation", "cube")], [0])[0]
     assert fingertips.cost_options.hold_first == 0
     new_keys = ("hold_first", "hold_approach")
@@ -202,7 +198,8 @@ def test_a_trial_plans_with_its_hold():
         "trifinger", [("in-hand", "cube")], [0], cost_options=CostOptions(hold_first=0)
     )[0]
     assert stored_config(old)["hold_approach"] == LEGACY_DEFAULTS["hold_approach"] == 1.0
-    assert default.cost_options.hold_approach == environment("trifinger").hold_approach
+    defaults = environment("trifinger").cost_defaults
+    assert default.cost_options.hold_approach == defaults.hold_approach
     assert unheld.cost_options.hold_approach == 1.0  # no hold to approach
     drawn = trial_configs(
         "trifinger", [("in-hand", "water_bottle")], [0], cost_options=CostOptions(hold_approach=3.0)
@@ -216,9 +213,9 @@ def test_the_cli_refuses_a_meaningless_hold(capsys):
     for argv, message in (
         (["trifinger", "--hold-first", "-1"], "--hold-first must be a number of contacts >= 0"),
         (["trifinger", "--hold-first", "2", "--cost", "pushing"], "--hold-first is a term of"),
-        (["fingertips", "--hold-first", "2"], "hold_first: the fingertips keep the paper's"),
+        (["fingertips", "--hold-first", "2"], "--hold-first: the fingertips cost has no such"),
         (["trifinger", "--hold-approach", "0"], "--hold-approach must be a weight > 0"),
-        (["trifinger", "--hold-approach", "2", "--hold-first", "0"], "hold_approach: it weighs"),
+        (["trifinger", "--hold-approach", "2", "--hold-first", "0"], "--hold-approach: it applies"),
         (["trifinger", "--hold-approach", "2", "--cost", "pushing"], "--hold-approach is a"),
     ):
         with pytest.raises(SystemExit):

@@ -11,7 +11,8 @@ import pytest
 
 from torchcontact.cli import main
 from torchcontact.environments import ENVIRONMENTS, import_environments
-from torchcontact.mpc.trials import build_trial, trial_configs
+from torchcontact.mpc.trial_config import trial_configs
+from torchcontact.mpc.trials import build_trial
 
 FINGER = Path(__file__).resolve().parents[1] / "examples" / "planar_finger.xml"
 

@@ -23,7 +23,7 @@ from torchcontact.environments.tasks import (
     sample,
 )
 from torchcontact.shapes import object_names
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 
 SEEDS = range(tasks.TRIALS)
 
@@ -226,9 +226,9 @@ def test_the_aim_rises_out_of_the_support_by_at_most_half_the_tolerance():
 
 
 def test_most_flip_targets_of_the_foam_brick_sink_and_are_aimed_above_them():
-    from torchcontact.sim.fingertips import FingertipsEnv
+    from torchcontact.sim.fingertips import FingertipsPlant
 
-    env = FingertipsEnv("foam_brick")
+    env = FingertipsPlant("foam_brick")
     assert env.support_height == 0.0  # the ground
     assert env.resting_height([1.0, 0.0, 0.0, 0.0]) == env.object.resting_height()
     lifts = []
@@ -259,7 +259,7 @@ def test_bad_aim_input_names_the_argument(args, message):
 
 
 def test_an_object_set_beyond_the_allegro_palm_falls_and_one_on_it_does_not():
-    env = HandEnv("allegro", "cube")
+    env = HandPlant("allegro", "cube")
     identity = [1.0, 0.0, 0.0, 0.0]
     for dx, falls in ((0.0, False), (-0.25, True)):  # the wrist edge lies on −x
         start = env.resting_pose(env.support_centre + [dx, 0.0], identity)

@@ -109,7 +109,8 @@ def _closed_loop(robot: Path, name: str, seed: int, max_steps: int):
     """The record of the robot's default trial ``seed`` with the defaults, planned eagerly."""
     from torchcontact.mpc.controller import ContactImplicitMPC
     from torchcontact.mpc.model_options import ModelOptions
-    from torchcontact.mpc.trials import TrialConfig, run_trial
+    from torchcontact.mpc.trial_config import TrialConfig
+    from torchcontact.mpc.trials import run_trial
 
     env = from_mjcf(robot, name=name)
     plant = env.make_plant("cube")

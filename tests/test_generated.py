@@ -25,7 +25,7 @@ from torchcontact.generated import (
 )
 from torchcontact.resting import BASE_MARGIN
 from torchcontact.shapes import DEFAULT_MASS, convex
-from torchcontact.sim.hands import ROBOT_PREFIX, HandEnv
+from torchcontact.sim.hands import ROBOT_PREFIX, HandPlant
 
 SEEDS = [0, 1, 7, 42, 500, 999, REPORT_SEEDS, 1001, 1002, 1003, 1042, 5000]
 """Tuning seeds (< 1000) and reported ones (>= 1000); among them one-part objects (500, 1042),
@@ -174,7 +174,7 @@ def _turn_degrees(a: np.ndarray, b: np.ndarray) -> float:
     return math.degrees(2 * math.acos(min(1.0, dot)))
 
 
-def _robot_contacts(env: HandEnv) -> int:
+def _robot_contacts(env: HandPlant) -> int:
     """Contacts between the object and the robot's links in the current state."""
     model, data = env.model, env.data
     robot = {model.body(b).id for b in range(model.nbody)
@@ -195,7 +195,7 @@ def test_the_computed_resting_face_holds_in_mujoco(obj):
     Their bases carry the centre of mass at 7–18 % of the largest extent from the nearest edge
     (random-1003, 4.9 %, falls just short of BASE_MARGIN: the face of the widest margin), and
     none reaches the fingertips at their start, so only the resting face is on test."""
-    env = HandEnv("trifinger", obj, overflow="deepest")
+    env = HandPlant("trifinger", obj, overflow="deepest")
     body = env.object
     assert body.name == obj
     margin = body.resting_height() / body.tipping_ratio() / body.size.max()

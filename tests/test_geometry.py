@@ -9,9 +9,9 @@ from torchcontact.environments import environment
 from torchcontact.geometry import Shape, rollout
 from torchcontact.model import paper_model
 from torchcontact.sim.detect import ContactDetector
-from torchcontact.sim.fingertips import FingertipsEnv
+from torchcontact.sim.fingertips import FingertipsPlant
 from torchcontact.sim.geometry import body_tree, scene_geometry
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 
 RNG = np.random.default_rng(7)
 POINTS = RNG.normal(size=(30, 3)) * [0.03, 0.02, 0.025]
@@ -44,7 +44,7 @@ def pairs_scene():
 
 
 def test_kinematics_and_point_jacobians_match_mujoco():
-    env = HandEnv("allegro", "cube")
+    env = HandPlant("allegro", "cube")
     model, data = env.model, mujoco.MjData(env.model)
     tree = body_tree(model)
     rng = np.random.default_rng(0)
@@ -91,9 +91,9 @@ def test_distances_match_mj_geom_distance(pairs_scene, kind):
 @pytest.mark.parametrize(
     "make",
     [
-        lambda: HandEnv("trifinger", "bunny"),
-        lambda: HandEnv("allegro", "cube"),
-        lambda: FingertipsEnv("cube"),
+        lambda: HandPlant("trifinger", "bunny"),
+        lambda: HandPlant("allegro", "cube"),
+        lambda: FingertipsPlant("cube"),
     ],
 )
 def test_contacts_match_the_detector(make):
@@ -122,7 +122,7 @@ def test_contacts_match_the_detector(make):
 
 def test_normal_rows_are_the_gradient_of_phi():
     """Jⁿ v equals the rate of φ along q ⊕ εv (finite differences), contact by contact."""
-    env = HandEnv("trifinger", "cube")
+    env = HandPlant("trifinger", "cube")
     geometry = scene_geometry(env.detector, dtype=torch.float64)
     layout = environment("trifinger").layout
     from torchcontact.integrate import integrate
@@ -217,7 +217,7 @@ def test_distance_properties():
 def test_rollout_reaches_controls_and_stiffness():
     """A TriFinger rollout with the geometry in the loop: finite, and the gradient of the
     last state reaches the controls and K."""
-    env = HandEnv("trifinger", "cube")
+    env = HandPlant("trifinger", "cube")
     description = environment("trifinger")
     geometry = scene_geometry(env.detector, dtype=torch.float64)
     system = description.system(env).double()

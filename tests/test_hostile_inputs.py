@@ -43,15 +43,9 @@ from torchcontact.model import ComplementarityFree, paper_model
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.model_options import MAX_STIFFNESS, ModelOptions
 from torchcontact.mpc.models import load_learned
-from torchcontact.mpc.trials import (
-    RecordMismatch,
-    TrialsInterrupted,
-    build_trial,
-    record_status,
-    run_trials,
-    trial_configs,
-    trial_inputs,
-)
+from torchcontact.mpc.records import RecordMismatch, record_status
+from torchcontact.mpc.trial_config import trial_configs, trial_inputs
+from torchcontact.mpc.trials import TrialsInterrupted, build_trial, run_trials
 from torchcontact.qp import qp_solve
 from torchcontact.relaxed_qp import relaxed_qp_solve
 from torchcontact.results import locked_folder, read_json, writable_file, write_csv

@@ -12,7 +12,7 @@ from torchcontact.environments import environment
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.planners import LBFGS, Hybrid, Objective, planner
-from torchcontact.mpc.trials import trial_configs
+from torchcontact.mpc.trial_config import trial_configs
 
 F64 = torch.float64
 

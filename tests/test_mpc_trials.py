@@ -18,22 +18,18 @@ from torchcontact.model import ComplementarityFree, RelaxedQP
 from torchcontact.mpc import trials
 from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.models import DEFAULT_MODEL, MPC_MODELS
+from torchcontact.mpc.records import RecordMismatch, finished_record, record_status
 from torchcontact.mpc.report import csv_row, summarize
-from torchcontact.mpc.trials import (
+from torchcontact.mpc.trial_config import (
     LEGACY_DEFAULTS,
     REMOVED_OPTIONS,
     SCENES_VERSION,
-    RecordMismatch,
     TrialConfig,
     TrialRecord,
-    build_trial,
-    finished_record,
-    record_status,
-    run_trial,
-    run_trials,
     trial_configs,
     trial_inputs,
 )
+from torchcontact.mpc.trials import build_trial, run_trial, run_trials
 from torchcontact.relaxed_qp import PAPER_RELAXATION, paper_relaxation
 from torchcontact.results import write_json
 from torchcontact.shipped import SHIPPED
@@ -76,6 +72,14 @@ def _run(configs, out, **options) -> tuple[list[TrialRecord], list[tuple[int, bo
 def serial() -> list[TrialRecord]:
     """Trials 0 and 1 run one after the other in this process, writing nothing."""
     return run_trials(TWO, progress=False)
+
+
+def test_the_trials_module_provides_the_names_users_import_from_it():
+    from torchcontact.mpc import trial_config
+
+    users = ("TrialConfig", "TrialRecord", "trial_configs", "trial_inputs", "library_versions")
+    assert {*users, "run_trials", "build_trial", "run_trial"} <= set(trials.__all__)
+    assert all(getattr(trials, name) is getattr(trial_config, name) for name in users)
 
 
 def test_a_config_builds_its_environment_plant_and_mpc():

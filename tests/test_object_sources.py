@@ -13,7 +13,7 @@ import trimesh
 from torchcontact.cli import main
 from torchcontact.digests import content_sha256
 from torchcontact.environments import environment
-from torchcontact.mpc.trials import trial_configs, trial_inputs
+from torchcontact.mpc.trial_config import trial_configs, trial_inputs
 from torchcontact.object_sources import (
     OBJECT_SOURCES,
     canonical_object,

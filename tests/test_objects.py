@@ -20,12 +20,13 @@ from torchcontact.environments.fingertips import FINGERTIPS
 from torchcontact.environments.hands import ALLEGRO_ENV, PAPER_OBJECT_MASS, TRIFINGER_ENV
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.mpc.model_options import ModelOptions
-from torchcontact.mpc.trials import TrialConfig, config_from_flat, flat_config, object_facts
+from torchcontact.mpc.trial_config import TrialConfig, config_from_flat, flat_config
+from torchcontact.mpc.trials import object_facts
 from torchcontact.object_sources import is_mesh_file
 from torchcontact.objects import ObjectOptions, resolve
 from torchcontact.shapes import MAX_MESH_EXTENT, OBJECT_SIZES, load_object, make_object
-from torchcontact.sim.fingertips import FingertipsEnv
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.fingertips import FingertipsPlant
+from torchcontact.sim.hands import HandPlant
 from torchcontact.systems import GRAVITY
 
 BOX = (0.04, 0.03, 0.02)
@@ -183,7 +184,7 @@ def _object_geoms(env) -> np.ndarray:
 
 
 def test_a_hand_plant_takes_the_users_mass_and_friction(box_mesh):
-    env = HandEnv("trifinger", box_mesh, options=ObjectOptions(mass=0.05, friction=0.3))
+    env = HandPlant("trifinger", box_mesh, options=ObjectOptions(mass=0.05, friction=0.3))
     assert env.options == ObjectOptions(mass=0.05, friction=0.3)
     assert env.object.mass == 0.05 and env.object_friction == 0.3
     np.testing.assert_allclose(env.object.size, BOX, atol=1e-6)
@@ -192,15 +193,15 @@ def test_a_hand_plant_takes_the_users_mass_and_friction(box_mesh):
     assert env.model.body_mass[body] == pytest.approx(0.05)
     np.testing.assert_allclose(env.model.geom_friction[_object_geoms(env), 0], 0.3)
     # the user's friction wins over a per-object override (the Allegro's binoculars: 0.9)
-    binoculars = HandEnv("allegro", "binoculars", options=ObjectOptions(friction=0.2))
+    binoculars = HandPlant("allegro", "binoculars", options=ObjectOptions(friction=0.2))
     assert binoculars.object_friction == 0.2
-    assert HandEnv("allegro", "binoculars").object_friction == 0.9
+    assert HandPlant("allegro", "binoculars").object_friction == 0.9
     # and the user's mass over the Allegro cube's 100 g
-    assert HandEnv("allegro", "cube", options=ObjectOptions(mass=0.05)).object.mass == 0.05
+    assert HandPlant("allegro", "cube", options=ObjectOptions(mass=0.05)).object.mass == 0.05
 
 
 def test_the_fingertips_plant_takes_the_users_friction():
-    env = FingertipsEnv("cube", options=ObjectOptions(friction=0.3, mass=0.02))
+    env = FingertipsPlant("cube", options=ObjectOptions(friction=0.3, mass=0.02))
     assert env.object_friction == 0.3 and env.object.mass == 0.02
     np.testing.assert_allclose(env.model.geom_friction[_object_geoms(env), 0], 0.3)
 

@@ -11,7 +11,8 @@ import torch
 
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.learn.data import collect, load
-from torchcontact.mpc.trials import run_trials, trial_configs
+from torchcontact.mpc.trial_config import trial_configs
+from torchcontact.mpc.trials import run_trials
 from torchcontact.parallel import RAY_EXTRA, parallel_map
 
 ray = pytest.importorskip("ray")

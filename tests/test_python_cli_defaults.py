@@ -17,7 +17,8 @@ from torchcontact.cli.run import configs_of, parse_args
 from torchcontact.environments import ENVIRONMENTS, environment
 from torchcontact.mpc.controller import ContactImplicitMPC
 from torchcontact.mpc.models import default_model_fields
-from torchcontact.mpc.trials import build_trial, trial_configs
+from torchcontact.mpc.trial_config import trial_configs
+from torchcontact.mpc.trials import build_trial
 from torchcontact.shipped import SHIPPED
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,7 +122,7 @@ def test_the_cost_is_the_clis(built):
     name, env, _, cli, python = built
     assert type(python.cost) is type(cli.cost)
     if name == "trifinger-stick":  # the environment's hold-first term, in both
-        assert cli.cost.hold is not None and cli.cost.hold.grip == env.hold_first
+        assert cli.cost.hold is not None and cli.cost.hold.grip == env.cost_defaults.hold_first
     assert dataclasses.is_dataclass(cli.cost)
     for field in dataclasses.fields(cli.cost):
         assert same(getattr(python.cost, field.name), getattr(cli.cost, field.name)), field.name

@@ -75,11 +75,11 @@ def test_the_header_names_the_face_and_a_pose_for_a_built_in_is_refused(standing
 
 
 def test_records_of_a_mesh_posed_before_the_rule_are_rerun(standing, tmp_path):
-    from torchcontact.mpc.trials import (
+    from torchcontact.mpc.records import record_differences
+    from torchcontact.mpc.trial_config import (
         RELEASE_FIELDS,
         RESTING_RULE,
         flat_config,
-        record_differences,
         trial_configs,
         trial_inputs,
     )

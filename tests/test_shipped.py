@@ -11,7 +11,8 @@ from torchcontact.cli import main
 from torchcontact.cli.run import parse_args
 from torchcontact.digests import file_sha256
 from torchcontact.environments import environment
-from torchcontact.mpc.trials import trial_configs, trial_inputs, trial_model
+from torchcontact.mpc.trial_config import trial_configs, trial_inputs
+from torchcontact.mpc.trials import trial_model
 from torchcontact.shipped import SHIPPED, shipped_environments, shipped_manifest, shipped_path
 from torchcontact.stiffness import Constant
 

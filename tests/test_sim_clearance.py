@@ -9,14 +9,14 @@ import pytest
 
 from torchcontact.environments import environment
 from torchcontact.sim.clearance import CLEARANCE, penetrations
-from torchcontact.sim.hands import HandEnv
+from torchcontact.sim.hands import HandPlant
 from torchcontact.sim.scene import OBJECT_BODY
 
 # a 14.3 cm generated object whose trial seed 1 places it through a TriFinger fingertip
 OVERLAPPING = ("random-84", 1)
 
 
-def robot_penetration(plant: HandEnv) -> float:
+def robot_penetration(plant: HandPlant) -> float:
     """[m] The deepest overlap of any robot geom with the object (0: none)."""
     model, data = plant.model, plant.data
     body = model.body(OBJECT_BODY).id
@@ -24,7 +24,7 @@ def robot_penetration(plant: HandEnv) -> float:
     return max((-c.dist for c in penetrations(model, data, body, robot)), default=0.0)
 
 
-def overlapping_trifinger() -> tuple[HandEnv, np.ndarray, np.ndarray]:
+def overlapping_trifinger() -> tuple[HandPlant, np.ndarray, np.ndarray]:
     env = environment("trifinger")
     plant = env.make_plant(OVERLAPPING[0])
     initial, target = env.sample(plant, "in-hand", OVERLAPPING[1])
@@ -81,7 +81,7 @@ def test_an_object_clear_of_the_fingers_starts_at_the_initial_joints(hand):
 
 def test_joints_stay_within_their_limits():
     env = environment("allegro")
-    plant = HandEnv(dataclasses.replace(env.hand, clear_start=True), "random-58")
+    plant = HandPlant(dataclasses.replace(env.hand, clear_start=True), "random-58")
     overlap = plant.reset(*env.sample(plant, "on-palm", 0), joints=plant.initial_joints)
     depth = robot_penetration(plant)
     state = plant.reset(*env.sample(plant, "on-palm", 0))

@@ -9,7 +9,7 @@ import trimesh
 from conftest import render_or_skip
 
 from torchcontact.objects import ObjectOptions
-from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
+from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsPlant
 
 CUBE_REST = np.array([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0])
 RAISED_TIPS = np.array([0.2, 0.0, 0.05, 0.0, 0.2, 0.05, -0.2, 0.0, 0.05])
@@ -17,7 +17,7 @@ RAISED_TIPS = np.array([0.2, 0.0, 0.05, 0.0, 0.2, 0.05, -0.2, 0.0, 0.05])
 
 @pytest.fixture(scope="module")
 def cube_env():
-    env = FingertipsEnv("cube", contact_slots=8)
+    env = FingertipsPlant("cube", contact_slots=8)
     yield env
     env.close()
 
@@ -37,7 +37,7 @@ def test_state_layout_and_reset(cube_env):
 
 @pytest.mark.parametrize("name", ["cube", "foam_brick", "stick", "bunny"])
 def test_a_resting_object_stays_put_under_zero_actions(name):
-    env = FingertipsEnv(name, contact_slots=12)
+    env = FingertipsPlant(name, contact_slots=12)
     start = env.reset([0.01, -0.01, env.object.resting_height(), 1, 0, 0, 0])
     for _ in range(50):
         env.step(np.zeros(9))
@@ -101,11 +101,11 @@ def test_contacts_show_the_touching_tip_and_nothing_when_apart(cube_env):
 def test_overflow_raises_unless_deepest_is_chosen():
     tips = np.array([0.0395, 0, 0.03, 0, 0.0395, 0.03, -0.0395, 0, 0.03])
     pose = CUBE_REST + [0, 0, -1e-4, 0, 0, 0, 0]
-    strict = FingertipsEnv("cube", contact_slots=5)
+    strict = FingertipsPlant("cube", contact_slots=5)
     strict.reset(pose, tips=tips)
     with pytest.raises(ValueError, match="slots"):
         strict.contacts()
-    lenient = FingertipsEnv("cube", contact_slots=5, overflow="deepest")
+    lenient = FingertipsPlant("cube", contact_slots=5, overflow="deepest")
     lenient.reset(pose, tips=tips)
     assert lenient.contacts().active.all()
 
@@ -113,7 +113,7 @@ def test_overflow_raises_unless_deepest_is_chosen():
 def test_user_mesh_object(tmp_path):
     path = tmp_path / "puck.stl"
     trimesh.creation.cylinder(radius=1.0, height=0.5).export(path)
-    env = FingertipsEnv(path, options=ObjectOptions(size=0.06))
+    env = FingertipsPlant(path, options=ObjectOptions(size=0.06))
     np.testing.assert_allclose(env.object.size, [0.06, 0.06, 0.015], atol=1e-3)
     start = env.reset([0, 0, env.object.resting_height(), 1, 0, 0, 0])
     for _ in range(10):
@@ -147,13 +147,13 @@ def test_bad_input_names_the_argument(cube_env, call, message):
 
 def test_bad_constructor_arguments_name_themselves():
     with pytest.raises(ValueError, match="obj"):
-        FingertipsEnv("spoon")
+        FingertipsPlant("spoon")
     with pytest.raises(ValueError, match="overflow"):
-        FingertipsEnv("cube", overflow="drop")
+        FingertipsPlant("cube", overflow="drop")
     with pytest.raises(ValueError, match="frame_skip"):
-        FingertipsEnv("cube", frame_skip=0)
+        FingertipsPlant("cube", frame_skip=0)
 
 
 def test_the_bunny_collides_as_its_hull_unless_told_otherwise():
-    assert FingertipsEnv("bunny", contact_slots=12).object.collide_hull
-    assert not FingertipsEnv("bunny", contact_slots=12, collision="parts").object.collide_hull
+    assert FingertipsPlant("bunny", contact_slots=12).object.collide_hull
+    assert not FingertipsPlant("bunny", contact_slots=12, collision="parts").object.collide_hull

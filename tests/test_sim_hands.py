@@ -18,14 +18,14 @@ from torchcontact.sim.hands import (
     CONTACTS_PER_TIP,
     HANDS,
     TRIFINGER,
-    HandEnv,
+    HandPlant,
     scene_contact_slots,
 )
 
 
 @pytest.fixture(scope="module", params=sorted(HANDS))
 def cube_env(request):
-    env = HandEnv(request.param, "cube")
+    env = HandPlant(request.param, "cube")
     yield env
     env.close()
 
@@ -33,7 +33,7 @@ def cube_env(request):
 @pytest.mark.parametrize("hand", sorted(HANDS))
 @pytest.mark.parametrize("name", object_names())
 def test_every_object_builds_and_rests_on_its_support(hand, name):
-    env = HandEnv(hand, name, overflow="deepest")
+    env = HandPlant(hand, name, overflow="deepest")
     n = HANDS[hand].n_joints
     assert env.nq == 7 + n and env.nv == 6 + n and env.nu == n
     pose = env.resting_pose(env.support_centre, [1.0, 0.0, 0.0, 0.0])
@@ -68,7 +68,7 @@ def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
     from torchcontact.model import paper_model
     from torchcontact.mpc.controller import ContactImplicitMPC
 
-    env = HandEnv("trifinger", name, overflow="deepest")
+    env = HandPlant("trifinger", name, overflow="deepest")
     model = paper_model(TRIFINGER_ENV.default_stiffness)
     settings = MPCSettings(compile=False)
     mpc = ContactImplicitMPC.from_env(TRIFINGER_ENV, env, model, settings=settings)
@@ -84,13 +84,13 @@ def test_resting_decomposed_object_is_not_lifted_by_the_papers_model(name):
 
 
 def test_allegro_objects_use_the_papers_masses_and_sizes():
-    cube = HandEnv("allegro", "cube")
+    cube = HandPlant("allegro", "cube")
     np.testing.assert_allclose(cube.object.size, [0.05] * 3, rtol=1e-6)
-    assert cube.object.mass == 0.1 and HandEnv("allegro", "stick").object.mass == 0.1
-    assert HandEnv("allegro", "bunny").object.mass == 0.01
-    assert HandEnv("trifinger", "cube").object.mass == 0.01
-    airplane = HandEnv("allegro", "airplane").object.size
-    np.testing.assert_allclose(airplane, 0.9 * HandEnv("trifinger", "airplane").object.size)
+    assert cube.object.mass == 0.1 and HandPlant("allegro", "stick").object.mass == 0.1
+    assert HandPlant("allegro", "bunny").object.mass == 0.01
+    assert HandPlant("trifinger", "cube").object.mass == 0.01
+    airplane = HandPlant("allegro", "airplane").object.size
+    np.testing.assert_allclose(airplane, 0.9 * HandPlant("trifinger", "airplane").object.size)
 
 
 def _sliding_friction(env, geom_body: int) -> float:
@@ -102,13 +102,13 @@ def test_per_object_friction_of_the_reference_scenes():
     """TriFinger: a 0.9 table under the cube, 0.5 under the meshes; Allegro: the binoculars
     have friction 0.9. Read back from the compiled MuJoCo models."""
     for obj, expected in (("cube", 0.9), ("stick", 0.5)):
-        env = HandEnv("trifinger", obj)
+        env = HandPlant("trifinger", obj)
         ground_geom = env.model.geom("ground").id
         assert env.model.geom_friction[ground_geom, 0] == pytest.approx(expected)
         assert env.ground_friction == pytest.approx(expected)
     obj_body = mujoco.mj_name2id(env.model, mujoco.mjtObj.mjOBJ_BODY, "object")
     assert _sliding_friction(env, obj_body) == pytest.approx(0.5)
-    binoculars = HandEnv("allegro", "binoculars")
+    binoculars = HandPlant("allegro", "binoculars")
     obj_body = mujoco.mj_name2id(binoculars.model, mujoco.mjtObj.mjOBJ_BODY, "object")
     assert _sliding_friction(binoculars, obj_body) == pytest.approx(0.9)
 
@@ -144,7 +144,7 @@ def test_hands_read_their_joints_and_tips_from_the_mjcf():
     robot = TRIFINGER.robot(torch.float32)
     assert robot.mjcf == TRIFINGER.mjcf and robot(torch.zeros(9)).dtype == torch.float32
     with pytest.raises(ValueError, match="initial_joints must have 9"):
-        HandEnv(dataclasses.replace(TRIFINGER, initial_joints=(0.0,) * 3), "cube")
+        HandPlant(dataclasses.replace(TRIFINGER, initial_joints=(0.0,) * 3), "cube")
 
 
 def test_the_servo_moves_free_joints_toward_the_command(cube_env):
@@ -171,25 +171,25 @@ def test_contacts_keep_only_the_object_pairs(cube_env):
 def test_a_user_mesh_is_scaled_and_placed(tmp_path):
     path = tmp_path / "box.stl"
     trimesh.creation.box([2.0, 1.0, 0.5]).export(path)
-    env = HandEnv("trifinger", path, options=ObjectOptions(size=0.08))
+    env = HandPlant("trifinger", path, options=ObjectOptions(size=0.08))
     np.testing.assert_allclose(env.object.size, [0.08, 0.04, 0.02], rtol=1e-6)
     assert env.object.name == "mesh_box"  # apart from the built-in names
 
 
 def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="hand"):
-        HandEnv("shadow", "cube")
+        HandPlant("shadow", "cube")
     with pytest.raises(ValueError, match="overflow"):
-        HandEnv(TRIFINGER, "cube", overflow="drop")
+        HandPlant(TRIFINGER, "cube", overflow="drop")
     with pytest.raises(ValueError, match="obj"):
-        HandEnv(ALLEGRO, "spoon")
-    env = HandEnv(TRIFINGER, "cube")
+        HandPlant(ALLEGRO, "spoon")
+    env = HandPlant(TRIFINGER, "cube")
     with pytest.raises(ValueError, match="u must have shape"):
         env.step(np.zeros(4))
 
 
 def test_render_shows_the_scene():
-    env = HandEnv("trifinger", "cube")
+    env = HandPlant("trifinger", "cube")
     try:
         image = render_or_skip(env, 64, 48)
     finally:
@@ -199,7 +199,7 @@ def test_render_shows_the_scene():
 
 def test_the_trifinger_sees_a_tip_within_its_contact_margin_as_an_open_gap():
     gap = 0.003  # [m], inside the TriFinger's 5 mm margin
-    seen, blind = HandEnv("trifinger", "cube"), HandEnv("trifinger", "cube", contact_margin=0.0)
+    seen, blind = HandPlant("trifinger", "cube"), HandPlant("trifinger", "cube", contact_margin=0.0)
     assert TRIFINGER.contact_margin == 0.005 and ALLEGRO.contact_margin == 0.0
     model, tip = seen.model, seen.fingertips()[0]
     (tip_geom,) = np.flatnonzero(model.geom_bodyid == model.site_bodyid[seen.tip_sites[0]])
@@ -212,23 +212,23 @@ def test_the_trifinger_sees_a_tip_within_its_contact_margin_as_an_open_gap():
     assert seen.detector.found == 1 and blind.contacts().active.sum() == 0
     assert float(contacts.phi[contacts.active][0]) == pytest.approx(gap, abs=1e-5)
     with pytest.raises(ValueError, match="contact_margin"):
-        HandEnv("trifinger", "cube", contact_margin=-0.001)
+        HandPlant("trifinger", "cube", contact_margin=-0.001)
 
 
 def test_the_plant_collides_its_object_as_asked():
     """By default the airplane collides as its hull, as the paper's one mesh geom did."""
     for collision, hull in (("auto", True), ("hull", True), ("parts", False)):
-        env = HandEnv("allegro", "airplane", collision=collision)
+        env = HandPlant("allegro", "airplane", collision=collision)
         assert env.object.collide_hull is hull
-    assert not HandEnv("trifinger", "mug").object.collide_hull  # its cavity stays open
+    assert not HandPlant("trifinger", "mug").object.collide_hull  # its cavity stays open
     with pytest.raises(ValueError, match="collision"):
-        HandEnv("trifinger", "cube", collision="convex")
+        HandPlant("trifinger", "cube", collision="convex")
 
 
 def test_the_allegro_palm_footprint_is_its_collision_box_in_the_world():
     """The palm box spans x ∈ [−0.095, 0] (fingers towards +x) and y ∈ ±0.0565 (the MJCF)."""
-    plant = HandEnv("allegro", "cube")
+    plant = HandPlant("allegro", "cube")
     torch.testing.assert_close(
         torch.tensor(plant.support_footprint), torch.tensor((-0.095, -0.0565, 0.0, 0.0565))
     )
-    assert HandEnv("trifinger", "cube").support_footprint is None  # resting on the ground
+    assert HandPlant("trifinger", "cube").support_footprint is None  # resting on the ground

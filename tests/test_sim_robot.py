@@ -164,7 +164,7 @@ def test_to_moves_ranges_and_kinematics():
 
 
 def test_the_example_gripper_grasps_and_lifts_a_cube_in_a_scene():
-    """Attached under a prefix into the shared scene, as HandEnv attaches our hands."""
+    """Attached under a prefix into the shared scene, as HandPlant attaches our hands."""
     cube = make_object("cube", mass=0.01, size=(0.05, 0.05, 0.05))
     spec = scene_spec(
         "gripper_cube",

@@ -39,7 +39,8 @@ from torchcontact.shapes import (
 GENERATOR_VERSION = 1
 """Version of the seeds' random stream, part of each: a change of what a seed draws bumps it. A
 change of what is made of the draws (scenes 11: the resting face's margin judged after the
-stretch) bumps :data:`~torchcontact.mpc.trials.SCENES_VERSION` only, so old records are rerun."""
+stretch) bumps :data:`~torchcontact.mpc.trial_config.SCENES_VERSION` only, so old records are
+rerun."""
 
 MAX_SET = 100_000
 """The most objects a set (``random:N``, ``random:A-B``) names: a sweep of that many objects

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from torchcontact.cli import Parser
+from torchcontact.mpc.records import SET_ASIDE_STEM, read_record
 from torchcontact.mpc.report import tipped
-from torchcontact.mpc.trials import SET_ASIDE_STEM, read_record
 from torchcontact.results import writable_file, write_json
 
 TrialKey = tuple[str, str, str, int]

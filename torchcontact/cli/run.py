@@ -5,7 +5,7 @@
 seeds 0…19 of each selected (task, object) pair through :func:`~torchcontact.mpc.trials.
 run_trials` (one JSON record per finished trial, so an interrupted sweep resumes), then writes
 a summary (JSON + CSV) and the paper-style figure. The options map one to one onto the fields
-of :class:`~torchcontact.mpc.trials.TrialConfig`.
+of :class:`~torchcontact.mpc.trial_config.TrialConfig`.
 """
 
 from __future__ import annotations
@@ -38,14 +38,8 @@ from torchcontact.mpc import report
 from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.models import load_learned, mpc_model
 from torchcontact.mpc.planners import PLANNERS
-from torchcontact.mpc.trials import (
-    MAX_TRIALS,
-    TrialConfig,
-    finish_compiling,
-    object_facts,
-    run_trials,
-    trial_configs,
-)
+from torchcontact.mpc.trial_config import MAX_TRIALS, TrialConfig, trial_configs
+from torchcontact.mpc.trials import finish_compiling, object_facts, run_trials
 from torchcontact.object_sources import canonical_object, mesh_file_of
 from torchcontact.objects import ObjectOptions, describe_pose, mesh_rest
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
@@ -248,7 +242,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             plant = env.make_plant(args.pairs[0][1], args.collision, args.object_options)
             env.cost(plant, args.cost_options)
     except ValueError as error:
-        parser.error(named_as_option(str(error), RobotOptions))
+        parser.error(named_as_option(named_as_option(str(error), RobotOptions), CostOptions))
     args.settings = options_object(parser, args, env.preset(args.preset))
     args.max_steps = args.max_steps or env.criterion.max_steps
     try:
@@ -385,15 +379,11 @@ def main(argv: list[str] | None = None) -> int:
         if path is not None:
             writable_file(option, path)
     planner = "" if args.planner == args.env_description.planner else f", planner {args.planner}"
-    terms = configs[0].cost_options
-    hold = terms.hold_first
-    hold = f", objects that tip held by {hold} contacts before they move" if hold else ""
-    if terms.hold_first and terms.hold_approach != 1:
-        hold += f", approached at {terms.hold_approach:g}× the contact term"
+    terms = configs[0].cost_options.describe()
     print(
         f"MPC through the {args.model_options.model} model "
         f"({args.model_options.describe(args.env)}); solver "
-        f"{args.settings.label}{planner}{hold}"
+        f"{args.settings.label}{planner}{', ' + terms if terms else ''}"
     )
     for line in describe_objects(args):
         print(line)

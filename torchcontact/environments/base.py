@@ -90,11 +90,8 @@ class Environment:
         default_stiffness: the K ``torchcontact run`` plans with unless told otherwise.
         planner: the planner it plans with unless told otherwise (a name of
             :data:`~torchcontact.mpc.planners.PLANNERS`), the measured best.
-        hold_first: how many fingertip contacts must hold an object that tips before it
-            slides before its MPC moves it (:class:`~torchcontact.environments.costs
-            .HoldFirst`); 0 where it moves it at once.
-        hold_approach: with a hold, the weight of its cost's contact term while the object is
-            not yet held; 1 where it is the paper's throughout.
+        cost_defaults: the values of its cost's terms (:class:`~.options.CostOptions`) that
+            a user does not set; None for a term its cost does not have (none by default).
         presets: solver settings by preset name (:data:`~.presets.NAMES`).
         user_meshes: whether an object may be a mesh file or a generated object.
         layout: the joints of q: the object's free joint (block ``object``), then the
@@ -107,8 +104,7 @@ class Environment:
     stiffness: float
     default_stiffness: float
     planner: str = "lbfgs"
-    hold_first: int = 0
-    hold_approach: float = 1.0
+    cost_defaults: CostOptions = CostOptions()
     presets: Mapping[str, MPCSettings]
     user_meshes: bool = True
     layout: JointLayout

@@ -18,6 +18,7 @@ from torchcontact.rotations import (
     quaternion_to_matrix,
     up_axis,
 )
+from torchcontact.validation import register
 
 
 def position_cost(p: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -307,6 +308,14 @@ COSTS: dict[str, Callable[..., Cost]] = {
 }
 """Costs by name: grasp-style manipulation (the paper's) and pushing; keyword arguments are
 their weights."""
+
+
+def register_cost(name: str, factory: Callable[..., Cost]) -> None:
+    """Make ``cost(name, **weights)`` (and ``torchcontact run --cost NAME``, from a module
+    ``--import`` names) call ``factory(**weights)``, which returns a callable
+    ``cost(positions, quats, tips, controls, target_position, target_quat)`` (:class:`Cost`);
+    ``name`` must be new."""
+    register(COSTS, name, factory, "cost")
 
 
 def cost(name: str, **weights) -> Cost:

@@ -23,7 +23,7 @@ import numpy as np
 from torchcontact.environments import fingertips, tasks, workspace
 from torchcontact.environments.costs import Cost, ManipulationCost
 from torchcontact.environments.hands import TRIFINGER_PRESETS, HandEnvironment, HandModel
-from torchcontact.sim.hands import Hand, HandEnv
+from torchcontact.sim.hands import Hand, HandPlant
 from torchcontact.sim.kinematics import load_model, object_bodies
 from torchcontact.sim.robot import Robot
 from torchcontact.validation import is_finite_number
@@ -69,7 +69,7 @@ class PoseTask:
         if self.lift is not None and self.lift[0] < 0:
             raise ValueError(f"lift must not be negative, got {self.lift}")
 
-    def region(self, plant: HandEnv) -> workspace.Reach:
+    def region(self, plant: HandPlant) -> workspace.Reach:
         """Placement and target region on ``plant``: the given ones, the rest derived."""
         derived = _reach(plant)
         given = {
@@ -79,7 +79,7 @@ class PoseTask:
         }
         return dataclasses.replace(derived, **given, given=tuple(given))
 
-    def __call__(self, plant: HandEnv, task: str, seed: int):
+    def __call__(self, plant: HandPlant, task: str, seed: int):
         """Initial and target poses ``(7,), (7,)`` of trial ``seed`` on ``plant``."""
         region = self.region(plant)
         rng = np.random.default_rng(seed)
@@ -96,7 +96,7 @@ class PoseTask:
         return initial, target
 
 
-def _reach(plant: HandEnv) -> workspace.Reach:
+def _reach(plant: HandPlant) -> workspace.Reach:
     """The derived :class:`~torchcontact.environments.workspace.Reach` of ``plant``'s robot
     around its object (the workspace sampled once per robot)."""
     hand = plant.hand
@@ -247,7 +247,7 @@ class RobotEnvironment(HandEnvironment):
         self.derived = derived
         self.stiffness = PAPER_STIFFNESS  # the paper's; default_stiffness is the model's K
 
-    def describe(self, plant: HandEnv) -> list[str]:
+    def describe(self, plant: HandPlant) -> list[str]:
         lines = [f"robot {self.hand.mjcf.name}: {self.derived.describe()}"]
         if isinstance(self._sample, PoseTask):
             lines.append(self._sample.region(plant).describe())

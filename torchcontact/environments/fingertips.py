@@ -12,7 +12,7 @@ from torchcontact.environments.options import CostOptions
 from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions
-from torchcontact.sim.fingertips import FingertipsEnv
+from torchcontact.sim.fingertips import FingertipsPlant
 from torchcontact.sim.robot import Robot
 
 TRANSLATION_METRIC = 50.0
@@ -54,7 +54,7 @@ class FingertipsEnvironment(Environment):
 
     def make_plant(
         self, obj, collision: str = BENCHMARK_COLLISION, options: ObjectOptions | None = None
-    ) -> FingertipsEnv:
+    ) -> FingertipsPlant:
         if options is not None and not options.is_default:
             raise ValueError(
                 "options must be empty for fingertips: its objects are the paper's three "
@@ -66,7 +66,7 @@ class FingertipsEnvironment(Environment):
                 f"got {obj!r}"
             )
         settings = tasks.OBJECT_SETTINGS[obj]
-        return FingertipsEnv(
+        return FingertipsPlant(
             obj,
             object_friction=settings.object_friction,
             contact_slots=settings.contact_slots,
@@ -77,24 +77,21 @@ class FingertipsEnvironment(Environment):
     def robot(self, dtype: torch.dtype = torch.float64) -> Robot:
         return Robot.point_tips(3)
 
-    def object_model(self, plant: FingertipsEnv) -> ObjectModel:
+    def object_model(self, plant: FingertipsPlant) -> ObjectModel:
         rotation = tasks.OBJECT_SETTINGS[plant.object.name].rotational_metric
         return ObjectModel((TRANSLATION_METRIC,) * 3 + (rotation,) * 3, ROBOT_STIFFNESS)
 
-    def h(self, plant: FingertipsEnv) -> float:
+    def h(self, plant: FingertipsPlant) -> float:
         return tasks.OBJECT_SETTINGS[plant.object.name].model_step
 
-    def control_bound(self, plant: FingertipsEnv) -> float:
+    def control_bound(self, plant: FingertipsPlant) -> float:
         return CONTROL_BOUND
 
-    def cost(self, plant: FingertipsEnv, options: CostOptions | None = None) -> ManipulationCost:
-        options = CostOptions() if options is None else options
-        if options.hold_first or options.hold_approach not in (None, 1):
-            term = "hold_first" if options.hold_first else "hold_approach"
-            raise ValueError(f"{term}: the fingertips keep the paper's cost, with no hold")
+    def cost(self, plant: FingertipsPlant, options: CostOptions | None = None) -> ManipulationCost:
+        (CostOptions() if options is None else options).resolved(self)  # the paper's: no terms
         return ManipulationCost()
 
-    def sample(self, plant: FingertipsEnv, task: str, seed: int):
+    def sample(self, plant: FingertipsPlant, task: str, seed: int):
         return tasks.sample(task, plant.object.name, seed)
 
 

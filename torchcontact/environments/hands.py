@@ -19,7 +19,7 @@ from torchcontact.environments.presets import MPCSettings
 from torchcontact.integrate import JointLayout
 from torchcontact.objects import ObjectOptions
 from torchcontact.shapes import ObjectMesh, object_names
-from torchcontact.sim.hands import ALLEGRO, MODEL_FRICTION, TRIFINGER, Hand, HandEnv
+from torchcontact.sim.hands import ALLEGRO, MODEL_FRICTION, TRIFINGER, Hand, HandPlant
 
 HAND_METRIC = (50.0, 50.0, 50.0, 0.1, 0.1, 0.1)
 """εMₒ/h² of a 10 g object in the hands' model (translation [N/m], rotation)."""
@@ -55,11 +55,8 @@ class HandModel:
         contact_floor: whether the cost's contact and grasp terms draw the tips no lower than
             where a tip rests on the support (:attr:`ManipulationCost.contact_floor`, from the
             plant's geometry); off: toward the object's centre, the paper's.
-        hold_first: for objects that tip before they slide (:func:`tips_before_sliding`),
-            how many fingertip contacts must hold the object before the plan moves it toward
-            its target (:class:`~.costs.HoldFirst`); 0: it moves it from the first touch.
-        hold_approach: with :attr:`hold_first`, the contact term's weight while the object
-            is not yet held (:attr:`~.costs.HoldFirst.approach`); 1: the paper's throughout.
+        cost_defaults: the values of the cost's terms a user does not set
+            (:class:`~.options.CostOptions`; the paper's cost: no hold, approached at 1).
     """
 
     robot_stiffness: float
@@ -71,11 +68,10 @@ class HandModel:
     tilt: float = 0.0
     object_mass: float | None = None
     contact_floor: bool = False
-    hold_first: int = 0
-    hold_approach: float = 1.0
+    cost_defaults: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
 
 
-Sampler = Callable[[HandEnv, str, int], tuple[np.ndarray, np.ndarray]]
+Sampler = Callable[[HandPlant, str, int], tuple[np.ndarray, np.ndarray]]
 """``(plant, task, seed) ↦`` initial and target poses ``(7,), (7,)``."""
 
 
@@ -107,8 +103,7 @@ class HandEnvironment(Environment):
         self.pairs = tuple((task, obj) for obj in objects) or ((task, "cube"),)
         self.criterion = criterion
         self.stiffness = self.default_stiffness = model.stiffness
-        self.hold_first = model.hold_first
-        self.hold_approach = model.hold_approach
+        self.cost_defaults = model.cost_defaults
         self.presets = presets
 
     @functools.cached_property
@@ -117,45 +112,39 @@ class HandEnvironment(Environment):
 
     def make_plant(
         self, obj, collision: str = BENCHMARK_COLLISION, options: ObjectOptions | None = None
-    ) -> HandEnv:
-        return HandEnv(self.hand, obj, options=options, overflow="deepest", collision=collision)
+    ) -> HandPlant:
+        return HandPlant(self.hand, obj, options=options, overflow="deepest", collision=collision)
 
     def robot(self, dtype: torch.dtype = torch.float64) -> torch.nn.Module:
         return self.hand.robot(dtype)
 
-    def object_model(self, plant: HandEnv) -> ObjectModel:
+    def object_model(self, plant: HandPlant) -> ObjectModel:
         # a mass the user gives is the model's; else the scene's modelled mass, if it has one
         mass = None if plant.options.mass is not None else self.model.object_mass
         return ObjectModel(self.model.metric, self.model.robot_stiffness, mass)
 
-    def h(self, plant: HandEnv) -> float:
+    def h(self, plant: HandPlant) -> float:
         return self.model.h
 
-    def control_bound(self, plant: HandEnv) -> float:
+    def control_bound(self, plant: HandPlant) -> float:
         return self.model.control_bound
 
-    def cost(self, plant: HandEnv, options: CostOptions | None = None) -> Cost:
-        """The cost of ``plant``'s MPC with ``options``' terms, each None taken from the
-        model: the contacts that must hold an object that tips before it slides before the
-        plan moves it (:attr:`HandModel.hold_first`, 0: none) and the contact term's weight
-        while it is not yet held (:attr:`HandModel.hold_approach`, 1: none; another value
-        needs a hold)."""
+    def cost(self, plant: HandPlant, options: CostOptions | None = None) -> Cost:
+        """The cost of ``plant``'s MPC with ``options``' terms (:class:`CostOptions`), those
+        not set the model's (:attr:`HandModel.cost_defaults`)."""
         options = CostOptions() if options is None else options
         if not isinstance(options, CostOptions):
             raise TypeError(f"options must be CostOptions or None, got {type(options).__name__}")
+        terms = options.resolved(self)
         cost = self.model.cost
-        hold_first = self.model.hold_first if options.hold_first is None else options.hold_first
-        if hold_first and not isinstance(cost, ManipulationCost):
+        if terms.hold_first and not isinstance(cost, ManipulationCost):
             raise ValueError(f"hold_first: {type(cost).__name__} has no target to hold back")
-        if options.hold_approach not in (None, 1) and not hold_first:
-            raise ValueError("hold_approach: it weighs the approach to a hold; set hold_first")
-        approach = self.model.hold_approach
-        approach = approach if options.hold_approach is None else options.hold_approach
         # every object gets the terms, switched off by an input where the object slides before
         # it tips, so all objects share one compiled graph
         tips = tips_before_sliding(plant.object)
-        if hold_first:
-            cost = dataclasses.replace(cost, hold=HoldFirst(hold_first, approach, applies=tips))
+        if terms.hold_first:
+            hold = HoldFirst(terms.hold_first, terms.hold_approach, applies=tips)
+            cost = dataclasses.replace(cost, hold=hold)
         if self.model.tilt > 0:
             gate = torch.tensor(float(tips), dtype=torch.float64)
             cost = dataclasses.replace(cost, tilt=self.model.tilt, tilt_applies=gate)
@@ -164,16 +153,16 @@ class HandEnvironment(Environment):
             cost = dataclasses.replace(cost, contact_floor=floor)
         return cost
 
-    def sample(self, plant: HandEnv, task: str, seed: int):
+    def sample(self, plant: HandPlant, task: str, seed: int):
         return self._sample(plant, task, seed)
 
 
-def sample_in_hand(plant: HandEnv, task: str, seed: int):
+def sample_in_hand(plant: HandPlant, task: str, seed: int):
     """TriFinger in-hand: :func:`~torchcontact.environments.tasks.sample_in_hand`."""
     return tasks.sample_in_hand(plant.resting_pose, seed)
 
 
-def sample_on_palm(plant: HandEnv, task: str, seed: int):
+def sample_on_palm(plant: HandPlant, task: str, seed: int):
     """Allegro on-palm: :func:`~torchcontact.environments.tasks.sample_on_palm` with the
     paper's per-object placements and yaw ranges (the palm centre for other objects)."""
     name = plant.object.name
@@ -211,10 +200,9 @@ TRIFINGER_ENV = HandEnvironment(
         object_mass=PAPER_OBJECT_MASS,
         # plates thinner than a tip's diameter are pressed down, not pushed at their rim
         contact_floor=True,
-        # a lone push tips over objects that tip before they slide: two tips hold them first
-        hold_first=2,
+        # a lone push tips over objects that tip before they slide: two tips hold them first;
         # unheld, only the contact term draws the tips in: a stronger pull closes the grip
-        hold_approach=4.0,
+        cost_defaults=CostOptions(hold_first=2, hold_approach=4.0),
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,

@@ -1,14 +1,16 @@
 """What a user may set of an environment's cost: its terms.
 
 Each field is the one home of its setting: ``torchcontact run`` generates its option from it
-(:mod:`torchcontact.cli.options`), a trial's configuration holds it
-(:class:`~torchcontact.mpc.trials.TrialConfig`) and the environment's ``cost(plant, options)``
-takes it. None keeps the environment's own value.
+(:mod:`torchcontact.cli.options`), a trial's configuration holds it resolved
+(:meth:`CostOptions.resolved`), and the environment's ``cost(plant, options)`` takes it. None
+keeps the environment's own value (:attr:`~torchcontact.environments.base.Environment
+.cost_defaults`). A field's metadata gives its ``off`` value (the paper's cost), the term it
+``needs`` to mean anything, and how a run's header ``tells`` it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 from torchcontact.validation import is_finite_number
 
@@ -21,7 +23,9 @@ class CostOptions:
         default=None,
         metadata={
             "help": "(hands) the contacts that must hold an object that tips before it slides "
-            "before the plan moves it (0: no hold); default the environment's"
+            "before the plan moves it (0: no hold); default the environment's",
+            "off": 0,
+            "tells": "objects that tip held by {} contacts before they move",
         },
     )
     hold_approach: float | None = field(
@@ -29,7 +33,10 @@ class CostOptions:
         metadata={
             "help": "(hands, with a hold) the weight of the cost's contact term, relative to "
             "its own, until the object is held: it draws the tips to the object (1: the "
-            "paper's throughout); default the environment's"
+            "paper's throughout); default the environment's",
+            "off": 1.0,
+            "needs": "hold_first",
+            "tells": "approached at {:g}× the contact term",
         },
     )
 
@@ -45,3 +52,43 @@ class CostOptions:
     def is_default(self) -> bool:
         """Whether nothing is set."""
         return self == CostOptions()
+
+    def resolved(self, env, cost: str | None = None) -> CostOptions:
+        """Every term given a value: the one set here, else the environment ``env``'s
+        (``env.cost_defaults``), else off; a term whose ``needs`` is off is off.
+
+        ``ValueError`` naming a term set on (not its ``off``) that cannot apply: one
+        ``env``'s cost does not have (None in its defaults), any term with another cost
+        than the environment's (``cost``, a registered cost's name), one whose ``needs`` is
+        off."""
+        values = {}
+        for term in fields(self):
+            off, needs = term.metadata["off"], term.metadata.get("needs")
+            given, default = getattr(self, term.name), getattr(env.cost_defaults, term.name)
+            needed = needs is None or values[needs] != _off(needs)
+            if given is not None and given != off:
+                if cost is not None:
+                    raise ValueError(
+                        f"{term.name} is a term of the environment's cost, not {cost!r}"
+                    )
+                if default is None:
+                    raise ValueError(f"{term.name}: the {env.name} cost has no such term")
+                if not needed:
+                    raise ValueError(f"{term.name}: it applies with {needs} only; set {needs}")
+            elif given is None:
+                given = off if cost is not None or default is None or not needed else default
+            values[term.name] = given
+        return CostOptions(**values)
+
+    def describe(self) -> str:
+        """The terms on (not off), in words, for a run's header ("" with none)."""
+        told = [
+            term.metadata["tells"].format(getattr(self, term.name))
+            for term in fields(self)
+            if getattr(self, term.name) not in (None, term.metadata["off"])
+        ]
+        return ", ".join(told)
+
+
+def _off(name: str):
+    return next(term.metadata["off"] for term in fields(CostOptions) if term.name == name)

@@ -388,7 +388,7 @@ def sample(task: str, obj: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 RestingPose = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""``(xy (2,), quat (4,)) ↦ (7,)`` pose resting on the support (``HandEnv.resting_pose``)."""
+"""``(xy (2,), quat (4,)) ↦ (7,)`` pose resting on the support (``HandPlant.resting_pose``)."""
 
 
 def sample_in_hand(resting_pose: RestingPose, seed: int) -> tuple[np.ndarray, np.ndarray]:

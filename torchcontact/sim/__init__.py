@@ -8,7 +8,7 @@ select_gl_backend()
 
 from torchcontact.sim.detect import ContactDetector
 from torchcontact.sim.dynamics import bias_force, joint_layout, mass_matrix
-from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsEnv
+from torchcontact.sim.fingertips import INITIAL_TIPS, TIP_RADIUS, FingertipsPlant
 from torchcontact.sim.kinematics import FingertipKinematics
 from torchcontact.sim.objects import add_goal_marker, add_object
 from torchcontact.sim.robot import Actuator, Robot
@@ -22,7 +22,7 @@ __all__ = [
     "Actuator",
     "ContactDetector",
     "FingertipKinematics",
-    "FingertipsEnv",
+    "FingertipsPlant",
     "ObjectMesh",
     "Robot",
     "UserScene",

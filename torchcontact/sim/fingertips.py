@@ -2,7 +2,7 @@
 
 The simulated side of the paper's fingertip experiments. Each fingertip is a sphere (radius
 1 cm) on three slide joints; a PD law with gravity compensation drives it towards ``x + u``
-over ``frame_skip`` MuJoCo substeps, so one :meth:`FingertipsEnv.step` is one MPC step
+over ``frame_skip`` MuJoCo substeps, so one :meth:`FingertipsPlant.step` is one MPC step
 (10 × 2 ms = 20 ms by default).
 
 State layout ``q (16,)``: object position (3) [m], object quaternion (w, x, y, z) (4), then
@@ -40,7 +40,7 @@ paper's scenes use (8 for cube and stick, 10 for the foam brick, 12 for our bunn
 MPCs share one compiled graph where their other settings agree."""
 
 
-class FingertipsEnv(Plant):
+class FingertipsPlant(Plant):
     """MuJoCo plant of the three-fingertip tasks, built in code with ``MjSpec``.
 
     Args:

@@ -4,7 +4,7 @@ A scene is the shared ground, object and goal marker (:func:`~torchcontact.sim.s
 with the robot's MJCF from ``torchcontact.assets`` attached under the prefix ``robot/`` and
 the world frame unchanged, so the fingertip sites of the file are the scene's (and the
 :class:`~torchcontact.sim.robot.Robot` read from the same file, :meth:`Hand.robot`, agrees
-with them). State ``q = (object position 3, quaternion 4, joints n)``; one :meth:`HandEnv.step`
+with them). State ``q = (object position 3, quaternion 4, joints n)``; one :meth:`HandPlant.step`
 holds the joint set point ``q_des = q + u`` for ``frame_skip`` MuJoCo substeps.
 """
 
@@ -80,7 +80,7 @@ class Hand:
             sees a touch coming instead of a fingertip passing through the object.
         tip_sites: fingertip site names in the file; None takes the file's sites named
             ``*tip`` (see :meth:`~torchcontact.sim.robot.Robot.from_mjcf`).
-        clear_start: whether :meth:`HandEnv.reset` moves the initial joints out of an object
+        clear_start: whether :meth:`HandPlant.reset` moves the initial joints out of an object
             placed through a finger (:func:`~torchcontact.sim.clearance.clear_joints`);
             False keeps them, and the servos then press those fingers onto the object.
         contact_capacity: the contact slots the MPC pads every object's contacts to, so that
@@ -247,7 +247,7 @@ HANDS = {hand.name: hand for hand in (TRIFINGER, ALLEGRO)}
 
 
 MODEL_FRICTION = 0.5
-"""μ the paper's hand models use in every contact row (HandEnv's default ``contact_mu``)."""
+"""μ the paper's hand models use in every contact row (HandPlant's default ``contact_mu``)."""
 
 CONTACTS_PER_TIP = 2
 """Slots kept per fingertip beyond the resting contacts (a tip on a seam touches two parts)."""
@@ -314,7 +314,7 @@ def scene_contact_slots(model: mujoco.MjModel, resting_qpos: np.ndarray, n_tips:
     return max(probe.found, 4) + CONTACTS_PER_TIP * n_tips
 
 
-class HandEnv(Plant):
+class HandPlant(Plant):
     """MuJoCo plant of a robot hand manipulating one object.
 
     Args:
