@@ -56,8 +56,8 @@ LEGACY_DEFAULTS = {
     "object_mass": None,
     "object_friction": None,
     "object_pose": "stable",
-    "hold_first": 0,
-    "hold_approach": 1.0,
+    # a record written before a cost term existed ran without it
+    **{term.name: term.metadata["off"] for term in fields(CostOptions)},
     "residual_plan": "fixed",
     "env_module": None,
     **dict.fromkeys(
