@@ -57,7 +57,7 @@ LEGACY_DEFAULTS = {
     "object_friction": None,
     "object_pose": "stable",
     # a record written before a cost term existed ran without it
-    **{term.name: term.metadata["off"] for term in fields(CostOptions)},
+    **asdict(CostOptions.off()),
     "residual_plan": "fixed",
     "env_module": None,
     **dict.fromkeys(
@@ -168,7 +168,7 @@ class TrialConfig:
     robot_options: RobotOptions = RobotOptions()
     env_module: str | None = None
     cost: str | None = None
-    cost_options: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
+    cost_options: CostOptions = CostOptions.off()
     object_options: ObjectOptions = ObjectOptions()
 
     @property

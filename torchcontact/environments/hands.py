@@ -68,7 +68,7 @@ class HandModel:
     tilt: float = 0.0
     object_mass: float | None = None
     contact_floor: bool = False
-    cost_defaults: CostOptions = CostOptions(hold_first=0, hold_approach=1.0)
+    cost_defaults: CostOptions = CostOptions.off()
 
 
 Sampler = Callable[[HandPlant, str, int], tuple[np.ndarray, np.ndarray]]
@@ -202,7 +202,7 @@ TRIFINGER_ENV = HandEnvironment(
         contact_floor=True,
         # a lone push tips over objects that tip before they slide: two tips hold them first;
         # unheld, only the contact term draws the tips in: a stronger pull closes the grip
-        cost_defaults=CostOptions(hold_first=2, hold_approach=4.0),
+        cost_defaults=dataclasses.replace(CostOptions.off(), hold_first=2, hold_approach=4.0),
     ),
     "in-hand",
     tasks.TRIFINGER_SUCCESS,

@@ -53,6 +53,11 @@ class CostOptions:
         """Whether nothing is set."""
         return self == CostOptions()
 
+    @classmethod
+    def off(cls) -> CostOptions:
+        """Every term at its ``off`` value: the paper's cost, as a value for each term."""
+        return cls(**{term.name: term.metadata["off"] for term in fields(cls)})
+
     def resolved(self, env, cost: str | None = None) -> CostOptions:
         """Every term given a value: the one set here, else the environment ``env``'s
         (``env.cost_defaults``), else off; a term whose ``needs`` is off is off.
@@ -61,11 +66,11 @@ class CostOptions:
         ``env``'s cost does not have (None in its defaults), any term with another cost
         than the environment's (``cost``, a registered cost's name), one whose ``needs`` is
         off."""
-        values = {}
+        values, offs = {}, CostOptions.off()
         for term in fields(self):
-            off, needs = term.metadata["off"], term.metadata.get("needs")
+            off, needs = getattr(offs, term.name), term.metadata.get("needs")
             given, default = getattr(self, term.name), getattr(env.cost_defaults, term.name)
-            needed = needs is None or values[needs] != _off(needs)
+            needed = needs is None or values[needs] != getattr(offs, needs)
             if given is not None and given != off:
                 if cost is not None:
                     raise ValueError(
@@ -88,7 +93,3 @@ class CostOptions:
             if getattr(self, term.name) not in (None, term.metadata["off"])
         ]
         return ", ".join(told)
-
-
-def _off(name: str):
-    return next(term.metadata["off"] for term in fields(CostOptions) if term.name == name)
