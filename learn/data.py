@@ -275,6 +275,7 @@ def collect(
 
 def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, seed: int):
     """The manifest of a dataset of ``built`` without trajectories (see the module docstring)."""
+    mesh = mesh_file_of(obj)
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -285,7 +286,7 @@ def _new_manifest(built, scene: str, obj: str, actions: str, noise, steps: int, 
         "noise": noise,
         "steps": steps,
         "seed": seed,
-        "object_sha256": None if mesh_file_of(obj) is None else content_sha256(mesh_file_of(obj)),
+        "object_sha256": None if mesh is None else content_sha256(mesh),
         **scene_header(built),
         "trajectories": [],
     }
