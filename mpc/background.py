@@ -51,6 +51,18 @@ def _marks() -> Path:
     return Path(cache_dir()) / MARKS
 
 
+def marked(key: str) -> bool:
+    """Whether this machine's cache holds the graph ``key`` (a process marked it compiled)."""
+    return (_marks() / key).exists()
+
+
+def mark(key: str) -> None:
+    """Mark the graph ``key`` as compiled into this machine's cache."""
+    path = _marks() / key
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.touch()
+
+
 class BackgroundCompile:
     """Which compiled graphs may run now, compiling the others one at a time in a child.
 
@@ -77,12 +89,11 @@ class BackgroundCompile:
             self._finish()
             if key in self._ready:
                 return True
-        marks = _marks()
-        if (marks / key).exists() or multiprocessing.current_process().daemon:
+        if marked(key) or multiprocessing.current_process().daemon:
             self._ready.add(key)
             return True
         self._child = multiprocessing.get_context("spawn").Process(
-            target=_compile_and_mark, args=(compile, marks / key), name=f"compile-{key[:8]}"
+            target=_compile_and_mark, args=(compile, key), name=f"compile-{key[:8]}"
         )
         self._child.start()
         self._child_key, self._started = key, time.monotonic()
@@ -124,8 +135,8 @@ class BackgroundCompile:
             )
 
 
-def _compile_and_mark(compile: Callable[[], object], mark: Path) -> None:
-    """The child: run ``compile`` on one thread, then create the file ``mark``."""
+def _compile_and_mark(compile: Callable[[], object], key: str) -> None:
+    """The child: run ``compile`` on one thread, then :func:`mark` ``key``."""
     import torch
 
     from torchcontact.mpc.compile_notes import quiet_known_inductor_warnings
@@ -133,5 +144,4 @@ def _compile_and_mark(compile: Callable[[], object], mark: Path) -> None:
     torch.set_num_threads(1)
     quiet_known_inductor_warnings()
     compile()
-    mark.parent.mkdir(parents=True, exist_ok=True)
-    mark.touch()
+    mark(key)

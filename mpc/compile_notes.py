@@ -38,3 +38,21 @@ def compile_notice(scene: str) -> str:
         f"compiling the MPC for {scene} (first run only, a minute or two per graph, cached in "
         f"{cache_dir()}); meanwhile the MPC plans eagerly, slower"
     )
+
+
+class CompilingWarning(UserWarning):
+    """Raised (as a warning) by a compiled MPC's ``plan()`` that is about to compile a graph
+    this machine has not compiled before: that call blocks for minutes."""
+
+
+def foreground_notice(description: str) -> str:
+    """The warning of a ``plan()`` that compiles ``description``'s graph in the foreground."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    return (
+        f"this plan() compiles the MPC's graph for {description}: minutes on this machine's "
+        f"first run (cached in {cache_dir()}, seconds to load after). To plan meanwhile, build "
+        "the MPC with background_compile=True (eager plans, slower, until the graph is ready); "
+        "to skip compiling, settings with compile=False; to warm the cache, run one plan() or "
+        "`torchcontact run ENV --trials 1` once"
+    )

@@ -30,7 +30,13 @@ from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.integrate import JointLayout, difference, integrate
 from torchcontact.model import ComplementarityFree, ContactModel, contact_model
 from torchcontact.mpc import planners
+from torchcontact.mpc import background
 from torchcontact.mpc.background import BackgroundCompile, graph_key
+from torchcontact.mpc.compile_notes import (
+    CompilingWarning,
+    foreground_notice,
+    quiet_known_inductor_warnings,
+)
 from torchcontact.mpc.models import default_model
 from torchcontact.mpc.planners import LBFGS, Objective, Planner
 from torchcontact.mpc.sources import (
@@ -296,7 +302,7 @@ class ContactImplicitMPC:
         which need no gradient; a freeze is plain tensor algebra for the closed form only, whose
         K(q), D(q) networks and dual rows took 0.4 ms of a TriFinger solve eagerly)."""
         if not self.compiled:
-            return self.differentiate, self.objective, None
+            return self.taped, self.objective, None
         freeze = None
         if isinstance(self.model, ComplementarityFree):
             freeze = torch.compile(self.model.freeze, dynamic=False, fullgraph=True)
@@ -450,7 +456,7 @@ class ContactImplicitMPC:
         (the relaxed QP solves there; the closed form needs nothing).
         """
         frozen = frozen.linearized(*self.system(controls))
-        differentiate = self._differentiate if compiled else self.differentiate
+        differentiate = self._differentiate if compiled else self.taped
         return differentiate(controls, q0, frozen, target_p, target_quat, *extras)
 
     def value(
@@ -475,6 +481,17 @@ class ContactImplicitMPC:
 
         grad, cost = torch.func.grad(total, has_aux=True)(controls)
         return cost, grad
+
+    def taped(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`differentiate` by a recorded tape (``torch.autograd``), the eager
+        gradient: on these small tensors ``torch.func.grad``'s transforms cost more than its
+        ops when not compiled (about 1.7× a TriFinger or fingertips objective's value and
+        gradient, docs/experiments.md, "Speed"); the same values up to rounding."""
+        with torch.enable_grad():
+            controls = controls.detach().requires_grad_(True)
+            cost = self.objective(controls, *args)
+            (grad,) = torch.autograd.grad(cost.sum(), controls)
+        return cost.detach(), grad
 
     def _flat_value_and_grad(
         self, x: torch.Tensor, *args, compiled: bool = True
@@ -538,11 +555,15 @@ class ContactImplicitMPC:
         if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out
             targets += (self._warm.reshape(self.horizon, -1).clone(),)
         inputs = (q, contacts, targets, self._warm.clone())
-        compiled = self.compiled
+        compiled, compiling = self.compiled, None
         if self._background is not None:
             warmup = functools.partial(self._solve, *inputs, compiled=True)  # for the child
             compiled = self._background.ready(self._graph_key(contacts), warmup)
+        elif compiled:
+            compiling = self._announce_compile(contacts)
         result = self._solve(*inputs, compiled=compiled)
+        if compiling is not None:
+            background.mark(compiling)
         controls = result.x.reshape(self.horizon, self.system.n_robot)
         self._warm = torch.cat([controls[1:], controls[-1:]]).reshape(1, -1)
         return Plan(
@@ -554,6 +575,26 @@ class ContactImplicitMPC:
             solve_ms=1e3 * (time.perf_counter() - start),
             compiled=compiled,
         )
+
+    def _announce_compile(self, contacts: Contacts) -> str | None:
+        """Before a foreground compiled solve at ``contacts``: the first time this process
+        meets its graph, quiet Inductor's known-harmless messages and, where this machine's
+        cache lacks the graph, warn (:class:`~torchcontact.mpc.compile_notes.CompilingWarning`)
+        that this ``plan()`` compiles it. Returns the graph's key to mark once compiled, or
+        None."""
+        key = self._graph_key(contacts)
+        if key in _GRAPHS_MET:
+            return None
+        _GRAPHS_MET.add(key)
+        quiet_known_inductor_warnings()
+        if background.marked(key):
+            return None
+        description = (
+            f"{type(self.cost).__name__}, T = {self.horizon}, {contacts.slots} contact slots, "
+            f"{str(self.dtype).removeprefix('torch.')}"
+        )
+        warnings.warn(CompilingWarning(foreground_notice(description)), stacklevel=4)
+        return key
 
     def padded_slots(self, slots: int) -> int:
         """The slot count a solve pads contacts of ``slots`` slots to: :attr:`contact_slots`
@@ -638,6 +679,11 @@ class ContactImplicitMPC:
                 *(("residual_plan", self.residual_plan) if self.residual is not None else ()),
             )  # fmt: skip
         return self._graph_keys[shape]
+
+
+_GRAPHS_MET: set[str] = set()
+"""Keys of the compiled graphs this process has planned with in the foreground (compiled or
+loaded): the compiled callables are shared by every MPC of the process."""
 
 
 def _corrected(v: torch.Tensor, corrections: torch.Tensor | None, t: int) -> torch.Tensor:

@@ -22,23 +22,41 @@ SUMMARY_KEYS = (
 
 
 def solve_times(record: dict) -> np.ndarray:
-    """The record's MPC solve times [ms] of the steps its compiled graph planned: those planned
-    eagerly while the graph compiled (``eager_steps``) are left out (all of them may be)."""
+    """The record's MPC solve times [ms] of the steps its MPC planned as configured: those
+    planned eagerly while the graph compiled (``eager_steps``) are left out (all of them may
+    be; see :func:`eager_solve_times`)."""
     return np.delete(np.asarray(record["solve_ms"], dtype=float), record.get("eager_steps") or [])
 
 
-def _compiled_or_all(records: list[dict]) -> np.ndarray:
-    """The solve times of the records' compiled steps, or of all steps where none was."""
-    times = np.concatenate([solve_times(r) for r in records])
-    return times if times.size else np.concatenate([r["solve_ms"] for r in records])
+def eager_solve_times(record: dict) -> np.ndarray:
+    """The record's solve times [ms] of the steps planned eagerly while its MPC compiled."""
+    return np.asarray(record["solve_ms"], dtype=float)[record.get("eager_steps") or []]
+
+
+def _statistics(times: list[np.ndarray], prefix: str, count: str) -> dict:
+    """``{prefix}_ms_median``, ``{prefix}_ms_p90`` (None where ``times`` hold none) and the
+    number ``count`` of the concatenated ``times``."""
+    times = np.concatenate(times)
+    empty = times.size == 0
+    return {
+        f"{prefix}_ms_median": None if empty else float(np.median(times)),
+        f"{prefix}_ms_p90": None if empty else float(np.percentile(times, 90)),
+        count: int(times.size),
+    }
+
+
+def ms(value: float | None) -> str:
+    """A solve time [ms] for a table: ``-`` where there is none (no step was compiled)."""
+    return "-" if value is None else f"{value:.1f}"
 
 
 def summarize(records: list[dict]) -> dict:
-    """Success rate, mean final errors and MPC time statistics over trial records (solve times
-    of compiled steps, see :func:`solve_times`)."""
+    """Success rate, mean final errors and MPC time statistics over trial records: the solve
+    times of the steps planned as configured (:func:`solve_times`; None where every step was
+    planned eagerly while the MPC compiled) and, apart, of those planned eagerly meanwhile
+    (:func:`eager_solve_times`), each with its count."""
     if not records:
         raise ValueError("records must hold at least one trial")
-    solve = _compiled_or_all(records)
     success = [r for r in records if r["success"]]
 
     def mean_of(key, rows):
@@ -54,13 +72,14 @@ def summarize(records: list[dict]) -> dict:
         "quat_err_mean": mean_of("quat_err", records),
         "pos_err_mm_mean_success": mean_of("pos_err_mm", success),
         "angle_err_deg_mean_success": mean_of("angle_err_deg", success),
-        "solve_ms_median": float(np.median(solve)),
-        "solve_ms_p90": float(np.percentile(solve, 90)),
+        # the steps planned as configured (compiled, or eager by choice) apart from those
+        # planned eagerly while the MPC compiled: never one median of both
+        **_statistics([solve_times(r) for r in records], "solve", "solve_steps"),
+        **_statistics([eager_solve_times(r) for r in records], "eager_solve", "eager_steps"),
         "detect_ms_median": float(np.median(np.concatenate([r["detect_ms"] for r in records]))),
         "sim_ms_median": float(np.median(np.concatenate([r["sim_ms"] for r in records]))),
         "iterations_median": float(np.median(np.concatenate([r["iterations"] for r in records]))),
         "steps_median": float(np.median([r["steps"] for r in records])),
-        "eager_steps": sum(len(r.get("eager_steps") or []) for r in records),
         "trials": len(records),
         # trials whose object left its support (see tasks.fell); None where a record cannot tell
         "falls": None if None in fallen else sum(fallen),
@@ -195,7 +214,7 @@ def table_row(record: dict) -> str:
         f"{record['task']:>9s} {Path(record['object']).stem[:11]:>11s} {record['seed']:>4d} "
         f"{'yes' if record['success'] else 'no':>7s} {record['steps']:>5d} "
         f"{record['pos_err_mm']:>8.1f} {record['quat_err']:>8.4f} {record['angle_err_deg']:>7.1f} "
-        f"{np.median(_compiled_or_all([record])):>8.1f}"
+        f"{ms(_median_or_none(solve_times(record))):>8s}"
     )
 
 
@@ -203,6 +222,10 @@ TABLE_HEADER = (
     f"{'task':>9s} {'object':>11s} {'seed':>4s} {'success':>7s} {'steps':>5s} "
     f"{'pos [mm]':>8s} {'quat err':>8s} {'ang [°]':>7s} {'solve ms':>8s}"
 )
+
+
+def _median_or_none(times: np.ndarray) -> float | None:
+    return float(np.median(times)) if times.size else None
 
 
 def count(n: int | None) -> str:
@@ -214,5 +237,5 @@ def csv_row(record: dict) -> dict:
     row = {k: record[k] for k in (*keys, "angle_err_deg")}
     row["fell"] = fell(record)
     row["tilt_err_deg"] = tilt_error_deg(record)
-    row["solve_ms_median"] = float(np.median(_compiled_or_all([record])))
+    row["solve_ms_median"] = _median_or_none(solve_times(record))
     return row

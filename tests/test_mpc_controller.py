@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -18,7 +19,8 @@ from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.functional import cf_velocity
 from torchcontact.integrate import difference, integrate, object_indices
 from torchcontact.model import contact_model
-from torchcontact.mpc import background
+from torchcontact.mpc import background, controller
+from torchcontact.mpc.compile_notes import CompilingWarning
 from torchcontact.mpc.controller import CONTACT_BUCKET, ContactImplicitMPC
 from torchcontact.mpc.planners import LBFGS
 from torchcontact.mpc.sources import MOVING
@@ -460,6 +462,30 @@ def test_compiled_plan_matches_the_eager_plan(env, gaps):
         expected, plan = eager.plan(q, contacts, *TARGET), compiled.plan(q, contacts, *TARGET)
         torch.testing.assert_close(plan.controls, expected.controls, rtol=0, atol=1e-10)
         assert plan.iterations == expected.iterations and plan.iterations > 0
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_a_plan_that_compiles_says_so_once_and_marks_its_graph(env, tmp_path, monkeypatch):
+    """A Python user's first compiled ``plan()`` of a graph this machine's cache lacks warns
+    that it compiles and how to skip it; it then marks the graph, so neither a later plan nor
+    another process (a fresh record of the graphs met) warns again (the graph of the test
+    above, cached)."""
+    monkeypatch.setattr(background, "_marks", lambda: tmp_path)
+    monkeypatch.setattr(controller, "_GRAPHS_MET", set())
+    q, contacts = _touching_state(env)
+    settings = MPCSettings(compile=True, horizon=2, max_iter=8, gaps="frozen")
+    mpc = ContactImplicitMPC.from_env(FINGERTIPS, env, settings=settings)
+    with pytest.warns(CompilingWarning, match="compile=False") as caught:
+        mpc.plan(q, contacts, *TARGET)
+    assert "12 contact slots" in str(caught[0].message) and len(caught) == 1
+    assert caught[0].filename == __file__  # points at the caller's plan()
+    assert len(list(tmp_path.iterdir())) == 1
+    monkeypatch.setattr(controller, "_GRAPHS_MET", set())
+    again = ContactImplicitMPC.from_env(FINGERTIPS, env, settings=settings)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CompilingWarning)
+        mpc.plan(q, contacts, *TARGET)
+        again.plan(q, contacts, *TARGET)
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from torchcontact.cli.run import print_summary
 from torchcontact.environments import environment
 from torchcontact.environments.fingertips import FINGERTIPS, STIFFNESS
 from torchcontact.environments.presets import PAPER, MPCSettings
@@ -364,19 +365,30 @@ def test_summary_counts_the_objects_that_end_tipped_over():
     ] == pytest.approx(90.0)
 
 
-def test_solve_times_leave_out_the_steps_planned_while_compiling():
-    """Steps planned eagerly while the graph compiled are not the compiled MPC's speed; a
-    sweep none of whose steps was compiled reports them all."""
+def test_solve_times_report_the_steps_planned_while_compiling_apart(capsys):
+    """Steps planned eagerly while the graph compiled are not the compiled MPC's speed: the
+    summary gives both medians apart, each with its count, and says so where no step was
+    compiled instead of reporting the eager steps as the MPC's."""
     base = {"success": True, "pos_err_mm": 1.0, "angle_err_deg": 1.0, "quat_err": 0.1,
             "steps": 3, "detect_ms": [1.0], "sim_ms": [1.0], "iterations": [1]}  # fmt: skip
     eager_first = {**base, "solve_ms": [100.0, 120.0, 3.0], "eager_steps": [0, 1]}
     compiled = {**base, "solve_ms": [4.0, 5.0, 6.0], "eager_steps": []}
     all_eager = {**base, "solve_ms": [90.0, 110.0], "eager_steps": [0, 1]}
     summary = summarize([eager_first, compiled, all_eager])
-    assert summary["solve_ms_median"] == 4.5 and summary["eager_steps"] == 4
-    assert summarize([all_eager])["solve_ms_median"] == 100.0
+    assert (summary["solve_ms_median"], summary["solve_steps"]) == (4.5, 4)
+    assert (summary["eager_solve_ms_median"], summary["eager_steps"]) == (105.0, 4)
+    alone = summarize([all_eager])
+    assert alone["solve_ms_median"] is None and alone["solve_steps"] == 0
+    assert alone["eager_solve_ms_median"] == 100.0
     older = {**base, "solve_ms": [2.0, 7.0]}  # records from before eager steps were kept
     assert summarize([older])["solve_ms_median"] == 4.5 and summarize([older])["eager_steps"] == 0
+    assert summarize([older])["eager_solve_ms_median"] is None
+    print_summary(alone, [("rotation", "cube")])
+    printed = capsys.readouterr().out
+    assert "no step was compiled" in printed and "median 100.0 ms" in printed
+    print_summary(summary, [("rotation", "cube")])
+    printed = capsys.readouterr().out
+    assert "median 4.5 ms" in printed and "(4 steps)" in printed and "median 105.0 ms" in printed
 
 
 @pytest.fixture(scope="module")

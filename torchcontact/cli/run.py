@@ -349,20 +349,34 @@ def print_summary(summary: dict, pairs: list) -> None:
             print(
                 f"{pair:>30s} {100 * s['success_rate']:>7.0f}% {report.count(s['falls']):>5s} "
                 f"{s['pos_err_mm_mean']:>9.1f} {s['angle_err_deg_mean']:>8.1f} "
-                f"{s['solve_ms_median']:>9.1f}"
+                f"{report.ms(s['solve_ms_median']):>9s}"
             )
     print(
         f"success {100 * summary['success_rate']:.1f}% of {summary['trials']}, "
         f"falls {report.count(summary['falls'])}, tipped {report.count(summary['tipped'])} | "
         f"final position {summary['pos_err_mm_mean']:.1f} mm, "
         f"angle {summary['angle_err_deg_mean']:.1f}° (quat err {summary['quat_err_mean']:.4f}) | "
-        f"MPC solve median {summary['solve_ms_median']:.1f} ms, p90 {summary['solve_ms_p90']:.1f}"
-        f" ms | detect {summary['detect_ms_median']:.2f} ms, sim {summary['sim_ms_median']:.2f} ms"
+        f"{solve_line(summary)} | detect {summary['detect_ms_median']:.2f} ms, "
+        f"sim {summary['sim_ms_median']:.2f} ms"
     )
     eager = summary.get("eager_steps")
     if eager:
         steps = "1 step was" if eager == 1 else f"{eager} steps were"
-        print(f"({steps} planned eagerly while the MPC compiled; their solve times are left out)")
+        print(
+            f"({steps} planned eagerly while the MPC compiled, median "
+            f"{summary['eager_solve_ms_median']:.1f} ms, p90 {summary['eager_solve_ms_p90']:.1f} "
+            "ms: left out of the MPC's solve times)"
+        )
+
+
+def solve_line(summary: dict) -> str:
+    """The summary's MPC solve times, or that no step was planned by the compiled MPC."""
+    if summary["solve_ms_median"] is None:
+        return "MPC solve: no step was compiled"
+    return (
+        f"MPC solve median {summary['solve_ms_median']:.1f} ms, p90 "
+        f"{summary['solve_ms_p90']:.1f} ms ({summary['solve_steps']} steps)"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
