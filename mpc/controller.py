@@ -29,8 +29,7 @@ from torchcontact.environments.costs import Cost
 from torchcontact.environments.presets import GAPS, MPCSettings
 from torchcontact.integrate import JointLayout, difference, integrate
 from torchcontact.model import ComplementarityFree, ContactModel, contact_model
-from torchcontact.mpc import planners
-from torchcontact.mpc import background
+from torchcontact.mpc import background, planners
 from torchcontact.mpc.background import BackgroundCompile, graph_key
 from torchcontact.mpc.compile_notes import (
     CompilingWarning,
