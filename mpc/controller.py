@@ -328,6 +328,16 @@ class ContactImplicitMPC:
                 raise
 
     @property
+    def compile_pid(self) -> int | None:
+        """The process id of the running background compile, or None."""
+        return None if self._background is None else self._background.pid
+
+    @property
+    def compile_log(self):
+        """The file the background compile writes its output to (None without one)."""
+        return None if self._background is None else self._background.log
+
+    @property
     def compile_elapsed(self) -> float:
         """Seconds the running background compile has taken so far (0 without one)."""
         return 0.0 if self._background is None else self._background.elapsed

@@ -63,7 +63,7 @@ __all__ = [
     "trial_configs",
     "trial_inputs",
     "TrialsInterrupted",
-    "finish_compiling",
+    "report_compiling",
     "object_facts",
     "start_penetration_mm",
     "trial_model",
@@ -236,8 +236,6 @@ def _run_job(job: _Job) -> TrialRecord:
     torch.set_num_threads(1)
     key = _setup_key(job.config)
     if _CACHE.get("key") != key:
-        if "mpc" in _CACHE:
-            _CACHE["mpc"].wait_for_compile()  # its child must finish before the reset below
         graph = _setup_key(job.config, objects=False)
         if _CACHE.get("graph") != graph:
             # Other settings bring other graphs: drop the previous ones, or dynamo reaches its
@@ -428,20 +426,17 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
             yield job_index, record, True
 
 
-def finish_compiling() -> None:
-    """Wait, saying so, for this process's background compile, if one runs: its graph is then
-    cached for the next run (the process would wait for it at exit anyway, silently)."""
+def report_compiling() -> None:
+    """Say so where this process's background compile still runs: it goes on after the run
+    (its own session), and the runs that start once it is done plan compiled throughout."""
     mpc = _CACHE.get("mpc")
     if mpc is not None and mpc.compiling:
         tqdm.write(
-            f"the trials are done and kept; finishing the MPC's compile for the next runs "
-            f"({mpc.compile_elapsed:.0f} s in so far; Ctrl-C skips it, the next run then "
-            "compiles again)"
+            f"the MPC's graph goes on compiling in a background process (pid "
+            f"{mpc.compile_pid}, {mpc.compile_elapsed:.0f} s in so far; output in "
+            f"{mpc.compile_log}): runs that start after it has finished plan compiled from "
+            "their first step"
         )
-        try:
-            mpc.wait_for_compile()
-        except KeyboardInterrupt:
-            raise KeyboardInterrupt("compile skipped; the trials' records are kept") from None
 
 
 def _batches(indices, jobs: list[_Job]) -> list[list[int]]:

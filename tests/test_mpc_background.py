@@ -2,6 +2,7 @@
 
 import functools
 import operator
+import os
 import time
 
 import pytest
@@ -60,3 +61,28 @@ def test_a_graph_key_is_stable_and_tells_settings_apart():
     assert graph_key(LBFGS(max_iter=5), 4) == graph_key(LBFGS(max_iter=5), 4)
     assert graph_key(LBFGS(max_iter=5), 4) != graph_key(LBFGS(max_iter=6), 4)
     assert graph_key(LBFGS(max_iter=5), 4) != graph_key(LBFGS(max_iter=5), 8)
+
+
+def test_a_child_outlives_its_parent_and_others_wait_for_it(marks, tmp_path):
+    """The child runs in a session of its own, so a run may end while it compiles; another
+    process (here a second compiler) that finds it at work plans eagerly instead of starting a
+    compile beside it, and starts its own once the child is done."""
+    first = BackgroundCompile()
+    assert not first.ready("k", functools.partial(time.sleep, 3.0))
+    child = first.pid
+    assert os.getsid(child) == child != os.getsid(0)  # a session of its own
+    other = BackgroundCompile()
+    assert background.compiling_elsewhere()
+    assert not other.ready("j", _never) and not other.compiling
+    first.wait()
+    assert (marks / "k").exists() and not (marks / "k.compiling").exists()
+    assert not background.compiling_elsewhere()
+    assert not other.ready("j", functools.partial(time.sleep, 0.0)) and other.compiling
+    other.wait()
+    assert other.ready("j", _never)
+
+
+def test_a_lock_left_by_a_dead_child_is_not_a_compile(marks):
+    (marks / "k.compiling").write_text("999999999")
+    os.utime(marks / "k.compiling", (0, 0))
+    assert not background.compiling_elsewhere() and not (marks / "k.compiling").exists()

@@ -39,7 +39,7 @@ from torchcontact.mpc.model_options import ModelOptions
 from torchcontact.mpc.models import load_learned, mpc_model
 from torchcontact.mpc.planners import PLANNERS
 from torchcontact.mpc.trial_config import MAX_TRIALS, TrialConfig, trial_configs
-from torchcontact.mpc.trials import finish_compiling, object_facts, run_trials
+from torchcontact.mpc.trials import object_facts, report_compiling, run_trials
 from torchcontact.object_sources import canonical_object, mesh_file_of
 from torchcontact.objects import ObjectOptions, describe_pose, mesh_rest
 from torchcontact.parallel import BACKENDS, RAY_EXTRA, check_backend
@@ -416,5 +416,5 @@ def main(argv: list[str] | None = None) -> int:
         summary = write_summary(args, [r.to_dict() for r in records], out)
     print_summary(summary, args.pairs)
     print(f"wrote {out}/summary.json, trials.csv, results.png")
-    finish_compiling()
+    report_compiling()
     return 0
