@@ -23,6 +23,7 @@ import hashlib
 import multiprocessing
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import time
@@ -214,6 +215,7 @@ def _compile_and_mark(folder: Path, key: str) -> None:
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # stopped: clean up as on exit
     try:
         _compile_and_mark(Path(sys.argv[1]), sys.argv[2])
     except BaseException:

@@ -585,6 +585,29 @@ class ContactImplicitMPC:
             compiled=compiled,
         )
 
+    def warm_up(
+        self, q: torch.Tensor, contacts: Contacts, target_p: torch.Tensor, target_quat: torch.Tensor
+    ) -> bool:
+        """Compile, in the foreground, the graph that :meth:`plan` with these arguments runs,
+        into this machine's cache (loaded at once where the cache holds it), and mark it, so
+        that later runs plan compiled from their first step. The MPC is left as it was (its
+        warm start, its last state, its background compile). Returns whether the graph was
+        compiled (False: it was in the cache). Needs a compiled MPC."""
+        if not self.compiled:
+            raise ValueError("warm_up needs a compiled MPC (settings with compile=True)")
+        key = self._graph_key(contacts.to(self.dtype).padded(self.padded_slots(contacts.slots)))
+        cached = background.marked(key)
+        kept = (self._background, self._eager_planner, self._warm.clone(), self._last_q)
+        self._background = self._eager_planner = None
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", CompilingWarning)  # compiling is the point
+                self.plan(q, contacts, target_p, target_quat)
+        finally:
+            self._background, self._eager_planner, self._warm, self._last_q = kept
+        background.mark(key)
+        return not cached
+
     def _announce_compile(self, contacts: Contacts) -> str | None:
         """Before a foreground compiled solve at ``contacts``: the first time this process
         meets its graph, quiet Inductor's known-harmless messages and, where this machine's

@@ -64,6 +64,7 @@ __all__ = [
     "trial_inputs",
     "TrialsInterrupted",
     "report_compiling",
+    "warm_graphs",
     "object_facts",
     "start_penetration_mm",
     "trial_model",
@@ -424,6 +425,26 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
     for index, records in finished:
         for job_index, record in zip(batches[index], records, strict=True):
             yield job_index, record, True
+
+
+def warm_graphs(configs: Sequence[TrialConfig], progress: bool = True) -> list[str]:
+    """Compile, in the foreground, the MPC graphs the trials of ``configs`` plan with (one
+    per setup: an environment's objects mostly share one), each at its setup's first trial's
+    start, into this machine's cache; graphs already there are loaded. Returns the names of
+    the trials whose graph was compiled."""
+    seen, compiled = set(), []
+    firsts = [c for c in configs if _setup_key(c) not in seen and not seen.add(_setup_key(c))]
+    for config in tqdm(firsts, desc="graphs", disable=not progress):
+        torch.set_num_threads(1)
+        env, plant, mpc = build_trial(config)
+        initial, target = env.sample(plant, config.task, config.seed)
+        initial, target = as_pose("initial", initial), as_pose("target", target)
+        plant.reset(initial, target)
+        aim = torch.as_tensor(env.aim(plant, target))
+        state = torch.as_tensor(plant.state())
+        if mpc.warm_up(state, plant.contacts(mpc.dtype), aim[:3], aim[3:]):
+            compiled.append(config.name)
+    return compiled
 
 
 def report_compiling() -> None:

@@ -10,3 +10,6 @@ python3 -m venv .venv
 .venv/bin/python -m pip install --quiet "torch==2.13.0"
 .venv/bin/python -m pip install --quiet -c scripts/constraints.txt -e ".[dev]"
 .venv/bin/python -c "import torch, mujoco, torchcontact; print('torch', torch.__version__, '| mujoco', mujoco.__version__, '| torchcontact ready')"
+# The quick start's MPC graph, compiled once into this machine's compile cache (minutes, once):
+# the quick start then plans compiled from its first step (torchcontact warm --help).
+OMP_NUM_THREADS=1 .venv/bin/torchcontact warm fingertips --task rotation --object cube --no-progress

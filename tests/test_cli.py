@@ -177,3 +177,18 @@ def test_tradeoff_benchmark_help_prints_its_usage():
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("usage: python benchmarks/tradeoff.py")
+
+
+def test_warm_takes_runs_options_and_refuses_a_run_that_does_not_compile(capsys):
+    """``torchcontact warm`` is ``run``'s options under its own name; with ``--no-compile``
+    there is nothing to compile, said in one line before anything is built."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["warm", "fingertips", "--object", "cube", "--no-compile"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert (
+        error.startswith("torchcontact warm: error: --no-compile") and len(error.splitlines()) == 1
+    )
+    with pytest.raises(SystemExit):
+        main(["warm", "fingertips", "--object", "no-such-object"])
+    assert "torchcontact warm: error: " in capsys.readouterr().err

@@ -489,6 +489,24 @@ def test_a_plan_that_compiles_says_so_once_and_marks_its_graph(env, tmp_path, mo
 
 
 @pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
+def test_warming_up_compiles_and_marks_the_graph_and_leaves_the_mpc_as_it_was(
+    env, tmp_path, monkeypatch
+):
+    """``warm_up`` compiles (here: loads, the graph of the tests above) and marks the graph a
+    plan would run, says whether the cache lacked it, and changes no warm start."""
+    monkeypatch.setattr(background, "_marks", lambda: tmp_path)
+    q, contacts = _touching_state(env)
+    settings = MPCSettings(compile=True, horizon=2, max_iter=8, gaps="frozen")
+    mpc = ContactImplicitMPC.from_env(FINGERTIPS, env, settings=settings, background_compile=True)
+    assert mpc.warm_up(q, contacts, *TARGET) and not mpc.compiling
+    assert not mpc._warm.any() and mpc._last_q is None
+    assert not mpc.warm_up(q, contacts, *TARGET)  # marked now
+    assert mpc.plan(q, contacts, *TARGET).compiled  # from its first plan
+    with pytest.raises(ValueError, match="compile=True"):
+        _mpc(env, horizon=2, max_iter=8, gaps="frozen").warm_up(q, contacts, *TARGET)
+
+
+@pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")  # torch's own
 def test_a_compiled_plan_works_out_a_fixed_residual_as_eager(env):
     """The fixed residual's corrections are traced with the freeze into the compiled start:
     the same plans as eager, plan after warm-started plan."""

@@ -25,6 +25,10 @@ JOBS = {
         "torchcontact.cli.compare",
         "two runs' trial records side by side: trials won and lost, McNemar p-value",
     ),
+    "warm": (
+        "torchcontact.cli.warm",
+        "compile ahead the MPC graphs a run with these options plans with (run's options)",
+    ),
     "learn-k": (
         "torchcontact.cli.learn_k",
         "learn K(q), D(q) from MuJoCo rollouts; compare with the paper's and the best constant K",

@@ -62,8 +62,11 @@ CUSTOM = "custom"
 """``torchcontact run custom --robot FILE --tips SITES``: a user's robot."""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(prog="torchcontact run", description="Closed-loop MPC trials in MuJoCo.")
+def build_parser(
+    prog: str = "torchcontact run", description: str = "Closed-loop MPC trials in MuJoCo."
+) -> argparse.ArgumentParser:
+    """The options of ``run`` (``torchcontact warm`` takes them too, under its own name)."""
+    parser = Parser(prog=prog, description=description)
     parser.add_argument("env", choices=sorted([*ENVIRONMENTS, CUSTOM]), help="the environment")
     parser.add_argument("--task", default="all", help="a task of the environment or 'all'")
     parser.add_argument(
@@ -217,9 +220,11 @@ def _import_named_module(argv: list[str] | None) -> None:
             Parser(prog="torchcontact run").error(f"{IMPORT}: {error}")
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def parse_args(argv: list[str] | None, **parser_names) -> argparse.Namespace:
+    """``run``'s options, checked (``parser_names``: :func:`build_parser`'s prog and
+    description, for another job that takes them)."""
     _import_named_module(argv)
-    parser = build_parser()
+    parser = build_parser(**parser_names)
     args = parser.parse_args(argv)
     if args.env_module is not None and args.env_module.endswith(".py"):
         args.env_module = str(Path(args.env_module).resolve())  # the same file for every worker
