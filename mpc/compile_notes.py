@@ -30,13 +30,13 @@ def quiet_known_inductor_warnings() -> None:
         warnings.filterwarnings("ignore", message=pattern, category=FutureWarning)
 
 
-def compile_notice(scene: str) -> str:
-    """The line printed once before a sweep of compiled trials."""
+def compile_notice(scene: str, pid: int) -> str:
+    """The line a run prints when its MPC starts compiling a graph in a background process."""
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
     return (
-        f"compiling the MPC for {scene} (first run only, a minute or two per graph, cached in "
-        f"{cache_dir()}); meanwhile the MPC plans eagerly, slower"
+        f"compiling the MPC for {scene} in a background process (pid {pid}; minutes, once per "
+        f"graph, cached in {cache_dir()}); meanwhile the MPC plans eagerly, slower"
     )
 
 

@@ -149,6 +149,7 @@ def run_trial(
         iterations.append(plan.iterations)
         if mpc.compiled and not plan.compiled:
             eager.append(step)
+            _notice_compile(mpc, config.env)
         if frames is not None and step % frame_every == 0:
             frames.append(plant.render())
         if tracker.update(plant.state()[:7]):
@@ -184,6 +185,18 @@ def run_trial(
             f"trial {config.name} ended with non-finite {', '.join(bad)}; no record written"
         )
     return record
+
+
+_NOTICED: set[int] = set()
+"""The background compiles this process has told its user of, by process id."""
+
+
+def _notice_compile(mpc: ContactImplicitMPC, env: str) -> None:
+    """Say once per background compile that the MPC's graph compiles, while it plans eagerly."""
+    pid = mpc.compile_pid
+    if pid is not None and pid not in _NOTICED:
+        _NOTICED.add(pid)
+        tqdm.write(compile_notice(env, pid))
 
 
 def start_penetration_mm(plant) -> float | None:
@@ -406,9 +419,6 @@ def _run_jobs(jobs: list[_Job], workers: int, backend: str, address: str | None)
     (writing each record as it finishes), and with a compiled MPC the first trial runs alone
     first: it compiles the MPC's graph into the machine's on-disk cache, which the workers then
     load instead of each compiling it anew. On Ray every trial is its own task."""
-    compiled = [job.config for job in jobs if job.config.settings.compile]
-    if compiled:
-        tqdm.write(compile_notice(compiled[0].env))
     if workers == 1 or backend != "local" or len(jobs) <= 1:
         finished = parallel_map(_run_job, jobs, workers, backend, address, _warn_retry(jobs))
         for index, record in finished:

@@ -28,5 +28,5 @@ def test_only_the_known_harmless_inductor_messages_are_dropped(caplog):
 
 def test_the_notice_names_the_scene_and_the_cache(monkeypatch, tmp_path):
     monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
-    notice = compile_notice("trifinger with cube")
-    assert "trifinger with cube" in notice and str(tmp_path) in notice
+    notice = compile_notice("trifinger with cube", 1234)
+    assert "trifinger with cube" in notice and str(tmp_path) in notice and "pid 1234" in notice
