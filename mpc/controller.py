@@ -494,7 +494,7 @@ class ContactImplicitMPC:
     def taped(self, controls, *args) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`differentiate` by a recorded tape (``torch.autograd``), the eager
         gradient: on these small tensors ``torch.func.grad``'s transforms cost more than its
-        ops when not compiled (about 1.7× a TriFinger or fingertips objective's value and
+        ops when not compiled (1.7–1.9× a fingertips, TriFinger or Allegro objective's value and
         gradient, docs/experiments.md, "Speed"); the same values up to rounding."""
         with torch.enable_grad():
             controls = controls.detach().requires_grad_(True)
