@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from torchcontact.mpc.background import MARKS
+from torchcontact.mpc.background import MARKS, compiling_elsewhere
 from torchcontact.results import write_json
 
 QUICK_START = ["run", "fingertips", "--task", "rotation", "--object", "cube", "--trials", "5"]
@@ -79,7 +79,7 @@ def timed_run(argv: list[str], cache: Path, out: Path) -> dict:
             wall = time.perf_counter() - start
             if run.returncode:
                 raise subprocess.CalledProcessError(run.returncode, command)
-        if wall is not None and not _compiling(marks):
+        if wall is not None and not compiling_elsewhere(marks):
             break
         time.sleep(0.5)
     ready = time.perf_counter() - start
@@ -91,11 +91,6 @@ def timed_run(argv: list[str], cache: Path, out: Path) -> dict:
         "graphs": len(graphs),
         **{key: summary[key] for key in SUMMARY_KEYS},
     }
-
-
-def _compiling(marks: Path) -> bool:
-    """Whether a background compile's lock is in the cache's ``marks`` folder."""
-    return marks.is_dir() and any(marks.glob("*.compiling"))
 
 
 def main() -> None:

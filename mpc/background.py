@@ -69,11 +69,12 @@ def marked(key: str) -> bool:
     return (_marks() / key).exists()
 
 
-def mark(key: str) -> None:
-    """Mark the graph ``key`` as compiled into this machine's cache."""
-    path = _marks() / key
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.touch()
+def mark(key: str, folder: Path | None = None) -> None:
+    """Mark the graph ``key`` as compiled into this machine's cache (the marks' ``folder``,
+    default this process's)."""
+    folder = _marks() if folder is None else folder
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / key).touch()
 
 
 class BackgroundCompile:
@@ -179,10 +180,12 @@ def _lock(key: str, folder: Path | None = None) -> Path:
     return (_marks() if folder is None else folder) / f"{key}.compiling"
 
 
-def compiling_elsewhere() -> bool:
+def compiling_elsewhere(folder: Path | None = None) -> bool:
     """Whether a child (of any process on this machine) is compiling a graph into this
-    cache now; locks left by a child that died are removed."""
-    for lock in _marks().glob("*.compiling") if _marks().is_dir() else ():
+    cache now (the marks' ``folder``, default this process's); locks left by a child that
+    died are removed."""
+    folder = _marks() if folder is None else folder
+    for lock in folder.glob("*.compiling") if folder.is_dir() else ():
         try:
             pid = int(lock.read_text())
             os.kill(pid, 0)
@@ -208,7 +211,7 @@ def _compile_and_mark(folder: Path, key: str) -> None:
         with open(job, "rb") as f:
             compile = pickle.load(f)
         compile()
-        (folder / key).touch()
+        mark(key, folder)
     finally:
         job.unlink(missing_ok=True)
         _lock(key, folder).unlink(missing_ok=True)

@@ -124,14 +124,10 @@ def run_trial(
     :func:`trial_inputs` of ``config``). Raises ``ValueError`` naming the trial when a value of
     :data:`FINITE_KEYS` comes out non-finite (no record of it is made)."""
     inputs = trial_inputs(config) if inputs is None else inputs
-    initial, target = env.sample(plant, config.task, config.seed)
-    # the poses as the plant takes them (quaternions normalised), recorded and judged so
-    initial, target = as_pose("initial", initial), as_pose("target", target)
-    plant.reset(initial, target)
+    initial, target, aim = _start(config, env, plant)
     mpc.reset()
     criterion = dataclasses.replace(env.criterion, max_steps=config.max_steps)
     tracker = tasks.SuccessTracker(target, criterion)
-    aim = env.aim(plant, target)
     target_p, target_quat = torch.as_tensor(aim[:3]), torch.as_tensor(aim[3:])
     times = {"detect_ms": [], "solve_ms": [], "sim_ms": []}
     iterations, found, eager = [], [], []
@@ -185,6 +181,15 @@ def run_trial(
             f"trial {config.name} ended with non-finite {', '.join(bad)}; no record written"
         )
     return record
+
+
+def _start(config: TrialConfig, env: Environment, plant) -> tuple[np.ndarray, ...]:
+    """Reset ``plant`` to ``config``'s trial: its initial and target poses (as the plant takes
+    them, quaternions normalised: recorded and judged so) and the pose the MPC aims at."""
+    initial, target = env.sample(plant, config.task, config.seed)
+    initial, target = as_pose("initial", initial), as_pose("target", target)
+    plant.reset(initial, target)
+    return initial, target, env.aim(plant, target)
 
 
 _NOTICED: set[int] = set()
@@ -442,15 +447,13 @@ def warm_graphs(configs: Sequence[TrialConfig], progress: bool = True) -> list[s
     per setup: an environment's objects mostly share one), each at its setup's first trial's
     start, into this machine's cache; graphs already there are loaded. Returns the names of
     the trials whose graph was compiled."""
-    seen, compiled = set(), []
-    firsts = [c for c in configs if _setup_key(c) not in seen and not seen.add(_setup_key(c))]
-    for config in tqdm(firsts, desc="graphs", disable=not progress):
+    firsts, compiled = {}, []
+    for config in configs:
+        firsts.setdefault(_setup_key(config), config)
+    for config in tqdm(firsts.values(), desc="graphs", disable=not progress):
         torch.set_num_threads(1)
         env, plant, mpc = build_trial(config)
-        initial, target = env.sample(plant, config.task, config.seed)
-        initial, target = as_pose("initial", initial), as_pose("target", target)
-        plant.reset(initial, target)
-        aim = torch.as_tensor(env.aim(plant, target))
+        aim = torch.as_tensor(_start(config, env, plant)[2])
         state = torch.as_tensor(plant.state())
         if mpc.warm_up(state, plant.contacts(mpc.dtype), aim[:3], aim[3:]):
             compiled.append(config.name)
