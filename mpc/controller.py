@@ -192,7 +192,7 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
-        self._differentiate, self._objective, self._freeze = self._compiled()
+        self._differentiate, self._objective, self._freeze, self._live = self._compiled()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
         self._last_q: torch.Tensor | None = None  # the state of the previous plan, for momentum
         self._object_rows = torch.tensor(system.object_dofs)
@@ -288,28 +288,40 @@ class ContactImplicitMPC:
     def __getstate__(self) -> dict:
         """Pickled (for a background compile) without its compiled callables and child."""
         state = self.__dict__.copy()
-        state.update(_differentiate=None, _objective=None, _freeze=None, _background=None)
+        state.update(
+            _differentiate=None, _objective=None, _freeze=None, _live=None, _background=None
+        )
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._differentiate, self._objective, self._freeze = self._compiled()
+        self._differentiate, self._objective, self._freeze, self._live = self._compiled()
 
-    def _compiled(self) -> tuple[Callable, Callable, Callable | None]:
-        """:meth:`differentiate`, :meth:`objective` and the closed form's freeze, through
-        ``torch.compile`` when the MPC compiles (the objective alone serves sampling planners,
-        which need no gradient; a freeze is plain tensor algebra for the closed form only, whose
-        K(q), D(q) networks and dual rows took 0.4 ms of a TriFinger solve eagerly)."""
+    def _compiled(self) -> tuple[Callable, Callable, Callable | None, Callable | None]:
+        """:meth:`differentiate`, :meth:`objective`, the closed form's freeze and the live
+        contacts, through ``torch.compile`` when the MPC compiles (the objective alone serves
+        sampling planners, which need no gradient; a freeze is plain tensor algebra for the
+        closed form only, whose K(q), D(q) networks and dual rows took 0.4 ms of a TriFinger
+        solve eagerly).
+
+        With ``"live"`` contacts the geometry is a graph of its own, compiled once and called
+        at every planned state from the objective's graph (through a graph break), and the
+        gradient is a tape over the two: traced inline, the geometry's forward and backward at
+        each state of four unrolled L-BFGS rounds made a graph that did not finish compiling in
+        50 minutes (docs/experiments.md, "The MPC's contact sources")."""
+        live = self.contacts_at if self.gaps == "live" else None
         if not self.compiled:
-            return self.taped, self.objective, None
+            return self.taped, self.objective, None, live
         freeze = None
         if isinstance(self.model, ComplementarityFree):
             freeze = torch.compile(self.model.freeze, dynamic=False, fullgraph=True)
-        return (
-            torch.compile(self.differentiate, dynamic=False),
-            torch.compile(self.objective, dynamic=False),
-            freeze,
-        )
+        objective = torch.compile(self.objective, dynamic=False)
+        if live is not None:
+            config = torch._dynamo.config  # a graph per vertex bucket and batch shape
+            config.recompile_limit = max(config.recompile_limit, LIVE_GRAPHS)
+            live = functools.partial(_contacts_through, torch.compile(live, dynamic=False))
+            return functools.partial(_taped, objective), objective, freeze, live
+        return torch.compile(self.differentiate, dynamic=False), objective, freeze, None
 
     @property
     def compiling(self) -> bool:
@@ -426,8 +438,8 @@ class ContactImplicitMPC:
         one frozen at the real state, or the source's (:mod:`~torchcontact.mpc.sources`)."""
         if isinstance(frozen, FrozenAlongPlan):
             return frozen.at(t, q, self.layout)
-        if self.gaps == "live" and t > 0:  # traced into the objective as it is, if compiled
-            return self.freeze(q, self.contacts_at(q), compiled=False)
+        if self.gaps == "live" and t > 0:  # the freeze traced into the objective, if compiled
+            return self.freeze(q, self._live(q), compiled=False)
         return frozen
 
     def residual_corrections(self, q0, controls, frozen, previous=None) -> torch.Tensor:
@@ -496,11 +508,7 @@ class ContactImplicitMPC:
         gradient: on these small tensors ``torch.func.grad``'s transforms cost more than its
         ops when not compiled (1.7–1.9× a fingertips, TriFinger or Allegro objective's value and
         gradient, docs/experiments.md, "Speed"); the same values up to rounding."""
-        with torch.enable_grad():
-            controls = controls.detach().requires_grad_(True)
-            cost = self.objective(controls, *args)
-            (grad,) = torch.autograd.grad(cost.sum(), controls)
-        return cost.detach(), grad
+        return _taped(self.objective, controls, *args)
 
     def _flat_value_and_grad(
         self, x: torch.Tensor, *args, compiled: bool = True
@@ -667,7 +675,9 @@ class ContactImplicitMPC:
         eager = self._eager_planner if self._eager_planner is not None else self.planner
         planner = self.planner if compiled else eager
         box = (self.lower, self.upper)
-        if compiled and self._freeze is not None and getattr(planner, "applies_prepare", False):
+        live = self.gaps == "live"  # its geometry is called through a graph break
+        applies_prepare = getattr(planner, "applies_prepare", False) and not live
+        if compiled and self._freeze is not None and applies_prepare:
             # the closed form's freeze is traced into the planner's first compiled call
             objective = Objective(
                 self._flat_value_and_grad, self._flat_differentiate, self._flat_value,
@@ -677,7 +687,7 @@ class ContactImplicitMPC:
                 return planner.plan(objective, warm, box, args=(q, contacts, *targets))
         args = self._frozen_args(q, contacts, *targets, compiled=compiled)
         if compiled:
-            traceable = self._flat_differentiate if args[1].traceable else None
+            traceable = self._flat_differentiate if args[1].traceable and not live else None
             objective = Objective(self._flat_value_and_grad, traceable, self._flat_value)
         else:
             objective = Objective(self._flat_eager_value_and_grad, value=self._flat_eager_value)
@@ -716,6 +726,29 @@ class ContactImplicitMPC:
 _GRAPHS_MET: set[str] = set()
 """Keys of the compiled graphs this process has planned with in the foreground (compiled or
 loaded): the compiled callables are shared by every MPC of the process."""
+
+
+LIVE_GRAPHS = 64
+"""The most graphs of the live geometry one process keeps (Dynamo's recompile limit, 8 by
+default, after which it would run eagerly): one per polytope vertex bucket
+(:func:`~torchcontact.geometry.scene.vertex_bucket`), batch shape and dtype."""
+
+
+@torch.compiler.disable
+def _contacts_through(geometry: Callable, q: torch.Tensor) -> Contacts:
+    """``geometry(q)`` behind a graph break: the compiled objective calls the compiled
+    geometry as a graph of its own (one function for every MPC, so that no objective graph is
+    specialised to one MPC's geometry)."""
+    return geometry(q)
+
+
+def _taped(objective: Callable, controls: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cost ``(B,)`` of ``objective(controls, *args)`` and its gradient by a recorded tape."""
+    with torch.enable_grad():
+        controls = controls.detach().requires_grad_(True)
+        cost = objective(controls, *args)
+        (grad,) = torch.autograd.grad(cost.sum(), controls)
+    return cost.detach(), grad
 
 
 def _corrected(v: torch.Tensor, corrections: torch.Tensor | None, t: int) -> torch.Tensor:

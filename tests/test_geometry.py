@@ -250,3 +250,31 @@ def test_a_support_ends_at_its_edge():
     assert len(touching) >= 2
     assert (touching[:, 0] <= 0.05 + 1e-9).all()  # every touching point lies over the palm
     assert (contacts.phi[contacts.active] < 0).all()
+
+
+def test_hulls_of_one_vertex_bucket_share_their_shapes():
+    """Hulls of 20 and 30 vertices are padded to one capacity (32 vertices, Euler's bounds on
+    edges and triangles), so a compiled geometry serves both; the padding changes no φ."""
+    from torchcontact.geometry.scene import vertex_bucket
+
+    assert [vertex_bucket(n) for n in (4, 8, 9, 20, 32, 33)] == [8, 8, 16, 32, 32, 64]
+    shapes = []
+    for count in (20, 30):
+        sphere = RNG.normal(size=(count, 3))
+        sphere = 0.03 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True)
+        xml = PAIRS_XML.replace(VERTICES, " ".join(map(str, sphere.ravel())))
+        model = mujoco.MjModel.from_xml_string(xml)
+        detector = ContactDetector(model, ["object"], 8, margin=0.02, per_pair=4)
+        geometry = scene_geometry(detector, dtype=torch.float64)
+        shapes.append({name: tuple(b.shape) for name, b in geometry.named_buffers()})
+        q = _random_state(model, np.random.default_rng(count))
+        data = mujoco.MjData(model)
+        data.qpos[:] = q
+        mujoco.mj_forward(model, data)
+        hull, ground = model.geom("hull").id, model.geom("ground").id
+        expected = mujoco.mj_geomDistance(model, data, hull, ground, 1.0, None)
+        phi, _ = geometry.distances(torch.tensor(q))
+        label = [pair.label for pair in geometry.pairs].index("hull|ground")
+        assert abs(float(phi[label]) - expected) < 1e-6
+    assert shapes[0] == shapes[1]
+    assert shapes[0]["groups.0.core_a.vertices"][1] == 32

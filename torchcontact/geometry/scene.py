@@ -261,7 +261,12 @@ class _Group(torch.nn.Module):
 
 class _CoreConstants(torch.nn.Module):
     """Body-frame cores of one kind, padded to a common count by repeating an entry (a
-    repeated vertex, triangle or edge changes no least or greatest)."""
+    repeated vertex, triangle or edge changes no least or greatest).
+
+    Polytopes are padded further, to the capacities of a polytope of :func:`vertex_bucket`
+    vertices (Euler's bounds: at most 3V − 6 edges and 2V − 4 triangles), so that a compiled
+    geometry is specialised to the bucket rather than to each hull: every object of a scene
+    whose hull falls in one bucket shares its graph."""
 
     def __init__(self, shapes: Sequence[Shape], dtype):
         super().__init__()
@@ -270,17 +275,25 @@ class _CoreConstants(torch.nn.Module):
             self.register_buffer("normal", as_tensor(np.stack([s.normal for s in shapes]), dtype))
             self.register_buffer("offset", torch.tensor([s.offset for s in shapes], dtype=dtype))
             return
-        self.register_buffer("vertices", _padded([s.vertices for s in shapes], dtype))
-        self.register_buffer("edges", _padded([s.vertices[s.edges()] for s in shapes], dtype))
+        vertices = edges = triangles = None
+        if self.kind == "polytope":
+            vertices = vertex_bucket(max(len(s.vertices) for s in shapes))
+            edges, triangles = 3 * vertices - 6, 2 * vertices - 4
+        self.register_buffer("vertices", _padded([s.vertices for s in shapes], dtype, vertices))
+        self.register_buffer(
+            "edges", _padded([s.vertices[s.edges()] for s in shapes], dtype, edges)
+        )
         if self.kind != "point":
-            self.register_buffer("directions", _padded([s.directions() for s in shapes], dtype))
+            self.register_buffer(
+                "directions", _padded([s.directions() for s in shapes], dtype, edges)
+            )
         if self.kind == "polytope":
             planes = [s.planes() for s in shapes]
             self.register_buffer(
-                "corners", _padded([s.vertices[s.triangles] for s in shapes], dtype)
+                "corners", _padded([s.vertices[s.triangles] for s in shapes], dtype, triangles)
             )
-            self.register_buffer("normals", _padded([n for n, _ in planes], dtype))
-            self.register_buffer("offsets", _padded([d for _, d in planes], dtype))
+            self.register_buffer("normals", _padded([n for n, _ in planes], dtype, triangles))
+            self.register_buffer("offsets", _padded([d for _, d in planes], dtype, triangles))
 
     def world(self, position, rotation, bodies) -> Core:
         """The cores in the world frame at the bodies' ``position (..., nbody, 3)`` and
@@ -317,11 +330,18 @@ def _deepest_index(phi: torch.Tensor) -> torch.Tensor:
     return index.expand(*index.shape[:-1], 3)
 
 
-def _padded(arrays: Sequence[np.ndarray], dtype) -> torch.Tensor:
-    """``(P, N, ...)`` from arrays of ``(N_i, ...)``, each padded with its first entry."""
-    count = max(len(a) for a in arrays)
+def _padded(arrays: Sequence[np.ndarray], dtype, count: int | None = None) -> torch.Tensor:
+    """``(P, N, ...)`` from arrays of ``(N_i, ...)``, each padded with its first entry to
+    ``count`` entries (default: the longest's)."""
+    count = max(len(a) for a in arrays) if count is None else count
     rows = [np.concatenate([a, np.repeat(a[:1], count - len(a), 0)]) for a in arrays]
     return as_tensor(np.stack(rows), dtype)
+
+
+def vertex_bucket(vertices: int) -> int:
+    """The polytope capacity a hull of ``vertices`` vertices is padded to: the next power of
+    two, at least 8 (a box): ⌈log₂⌉ graphs over every object size, each at most 2× the work."""
+    return max(8, 1 << (vertices - 1).bit_length())
 
 
 def _spanning(points: dict[str, torch.Tensor], per_pair: int) -> dict[str, torch.Tensor]:
