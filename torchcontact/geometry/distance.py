@@ -116,13 +116,22 @@ class Core:
         edges: ``(..., P, E, 2, 3)`` edge end points, None for a point.
         directions: ``(..., P, D, 3)`` the unit directions of its edges (a polytope's between
             faces that are not coplanar), each once; None for a point.
+        edge_normals: ``(..., P, E, 2, 3)`` a polytope's outward normals of the two faces
+            beside each edge; None for the others.
     """
 
     def __init__(
-        self, vertices, corners=None, normals=None, offsets=None, edges=None, directions=None
+        self,
+        vertices,
+        corners=None,
+        normals=None,
+        offsets=None,
+        edges=None,
+        directions=None,
+        edge_normals=None,
     ):
         self.vertices, self.corners, self.edges = vertices, corners, edges
-        self.directions = directions
+        self.directions, self.edge_normals = directions, edge_normals
         self.normals, self.offsets = normals, offsets
 
     @property
@@ -224,6 +233,7 @@ def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
     lines = a.directions is not None and b.directions is not None
     if lines or not faces:
         edge = _edge_pairs(a.edges, b.edges, smoothing)
+        closest = edge[4:]
         gaps.append(edge[0].unsqueeze(-1))
         from_a.append(edge[1].unsqueeze(-2))
         from_b.append(edge[2].unsqueeze(-2))
@@ -232,7 +242,9 @@ def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
     point_b = pick(weights, torch.cat(from_b, -2), -1)
     if not faces:  # neither core has a volume: cores never overlap
         return Separation(gap, point_a, point_b, _unit(point_b - point_a))
-    if lines:
+    if lines and (a.edge_normals is not None or b.edge_normals is not None):
+        faces.append(_minkowski_edge_axes(a, b, *closest, smoothing))
+    elif lines:
         faces.append(_edge_axes(a, b, smoothing))
     # the separating axis theorem: the cores overlap iff no candidate axis separates them,
     # and then the best axis's overlap is the penetration depth
@@ -290,7 +302,54 @@ def _edge_pairs(edges_a, edges_b, smoothing):
     witnesses = c1.flatten(-3, -2)
     nearest = gaps.topk(min(EDGE_POINTS, gaps.shape[-1]), -1, largest=False).indices
     crossings = witnesses.gather(-2, nearest.unsqueeze(-1).expand(*nearest.shape, 3))
-    return gap, pick(weights, witnesses, -1), pick(weights, c2.flatten(-3, -2), -1), crossings
+    return (
+        gap, pick(weights, witnesses, -1), pick(weights, c2.flatten(-3, -2), -1), crossings,
+        c1, c2,
+    )  # fmt: skip
+
+
+def _minkowski_edge_axes(a: Core, b: Core, c1, c2, smoothing):
+    """:func:`_edge_axes` where one core or both are polytopes, over the edge pairs that span
+    a face of their Minkowski difference only (on the Gauss map, the arcs of a polytope's
+    edges cross each other, or the great circle of the directions normal to a segment): the
+    edges themselves then support the axis, so the separation is the axis's component of the
+    gap between the edges' points, work ``Ea·Eb`` rather than ``Ea·Eb·(Va + Vb)``.
+
+    ``c1, c2 (..., P, Ea, Eb, 3)``: the closest points of every edge pair, the witnesses."""
+    start_a, start_b = a.edges[..., :, None, 0, :], b.edges[..., None, :, 0, :]
+    along_a = a.edges[..., :, None, 1, :] - start_a  # (..., P, Ea, 1, 3)
+    along_b = b.edges[..., None, :, 1, :] - start_b  # (..., P, 1, Eb, 3)
+    if a.edge_normals is not None and b.edge_normals is not None:
+        n1, n2 = a.edge_normals[..., :, None, 0, :], a.edge_normals[..., :, None, 1, :]
+        m1, m2 = -b.edge_normals[..., None, :, 0, :], -b.edge_normals[..., None, :, 1, :]
+        arc_a, arc_b = torch.linalg.cross(n2, n1), torch.linalg.cross(m2, m1)
+        cba, dba = (m1 * arc_a).sum(-1), (m2 * arc_a).sum(-1)
+        adc, bdc = (n1 * arc_b).sum(-1), (n2 * arc_b).sum(-1)
+        face = (cba * dba < 0) & (adc * bdc < 0) & (cba * bdc > 0)
+    elif a.edge_normals is not None:  # b a segment
+        n1, n2 = a.edge_normals[..., :, None, 0, :], a.edge_normals[..., :, None, 1, :]
+        face = (n1 * along_b).sum(-1) * (n2 * along_b).sum(-1) < 0
+    else:  # a a segment
+        m1, m2 = b.edge_normals[..., None, :, 0, :], b.edge_normals[..., None, :, 1, :]
+        face = (m1 * along_a).sum(-1) * (m2 * along_a).sum(-1) < 0
+    cross = torch.linalg.cross(along_a.expand_as(c1), along_b.expand_as(c1))
+    length = safe_norm(cross)
+    axis = cross / length.unsqueeze(-1)
+    # from a to b: out of the polytope a through its edge, else into the polytope b
+    if a.edge_normals is not None:
+        side = (axis * (start_a - a.vertices.mean(-2)[..., None, None, :])).sum(-1)
+    else:
+        side = (axis * (b.vertices.mean(-2)[..., None, None, :] - start_b)).sum(-1)
+    axis = axis * torch.where(side < 0, -1.0, 1.0).unsqueeze(-1)
+    gap = (axis * (start_b - start_a)).sum(-1)
+    separation = torch.where(face & (length > 1e-9), gap, -1e3).flatten(-2)
+    best, weights = select(separation, -1, smoothing, largest=True)
+    return (
+        best,
+        pick(weights, c1.flatten(-3, -2), -1),
+        pick(weights, c2.flatten(-3, -2), -1),
+        pick(weights, axis.flatten(-3, -2), -1),
+    )
 
 
 def _edge_axes(a: Core, b: Core, smoothing):

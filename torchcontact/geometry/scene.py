@@ -294,6 +294,9 @@ class _CoreConstants(torch.nn.Module):
             )
             self.register_buffer("normals", _padded([n for n, _ in planes], dtype, triangles))
             self.register_buffer("offsets", _padded([d for _, d in planes], dtype, triangles))
+            self.register_buffer(
+                "edge_normals", _padded([s.edge_normals() for s in shapes], dtype, edges)
+            )
 
     def world(self, position, rotation, bodies) -> Core:
         """The cores in the world frame at the bodies' ``position (..., nbody, 3)`` and
@@ -315,7 +318,8 @@ class _CoreConstants(torch.nn.Module):
             return Core(vertices, edges=edges, directions=directions)
         normals = (rr @ self.normals.unsqueeze(-1)).squeeze(-1)
         offsets = self.offsets + (normals * x.unsqueeze(-2)).sum(-1)
-        return Core(vertices, move(self.corners), normals, offsets, edges, directions)
+        edge_normals = (rr.unsqueeze(-3) @ self.edge_normals.unsqueeze(-1)).squeeze(-1)
+        return Core(vertices, move(self.corners), normals, offsets, edges, directions, edge_normals)
 
     def plane(self, position, rotation, bodies):
         """World outward normals ``(..., P, 3)`` and offsets ``(..., P)`` of planes."""

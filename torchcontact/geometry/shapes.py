@@ -122,6 +122,17 @@ class Shape:
         along = np.where(flip, -along, along)
         return np.unique(along.round(9), axis=0)
 
+    def edge_normals(self) -> np.ndarray:
+        """``(E, 2, 3)`` a polytope's outward normals of the two triangles beside each of its
+        :meth:`edges` (equal for a diagonal between coplanar triangles)."""
+        normals, _ = self.planes()
+        beside: dict[tuple[int, int], list[int]] = {}
+        for t, tri in enumerate(self.triangles):
+            for i, j in ((0, 1), (1, 2), (2, 0)):
+                beside.setdefault(tuple(sorted((int(tri[i]), int(tri[j])))), []).append(t)
+        faces = [beside[(int(i), int(j))] for i, j in self.edges()]
+        return np.stack([normals[[f[0], f[-1]]] for f in faces])
+
     def planes(self) -> tuple[np.ndarray, np.ndarray]:
         """A polytope's outward face planes: ``normals (T, 3)`` and ``offsets (T,)``."""
         corners = self.vertices[self.triangles]
