@@ -242,10 +242,8 @@ def core_separation(a: Core, b: Core, smoothing=None) -> Separation:
     point_b = pick(weights, torch.cat(from_b, -2), -1)
     if not faces:  # neither core has a volume: cores never overlap
         return Separation(gap, point_a, point_b, _unit(point_b - point_a))
-    if lines and (a.edge_normals is not None or b.edge_normals is not None):
+    if lines:  # with faces, one core is a polytope: it has edge normals
         faces.append(_minkowski_edge_axes(a, b, *closest, smoothing))
-    elif lines:
-        faces.append(_edge_axes(a, b, smoothing))
     # the separating axis theorem: the cores overlap iff no candidate axis separates them,
     # and then the best axis's overlap is the penetration depth
     depth, weights = select(torch.stack([f[0] for f in faces], -1), -1, smoothing, largest=True)
@@ -309,11 +307,13 @@ def _edge_pairs(edges_a, edges_b, smoothing):
 
 
 def _minkowski_edge_axes(a: Core, b: Core, c1, c2, smoothing):
-    """:func:`_edge_axes` where one core or both are polytopes, over the edge pairs that span
-    a face of their Minkowski difference only (on the Gauss map, the arcs of a polytope's
-    edges cross each other, or the great circle of the directions normal to a segment): the
-    edges themselves then support the axis, so the separation is the axis's component of the
-    gap between the edges' points, work ``Ea·Eb`` rather than ``Ea·Eb·(Va + Vb)``.
+    """The best separating axis among the cross products of a's and b's edges, one core or
+    both polytopes, turned to point from a towards b: a penetration candidate like a face's.
+    Only the edge pairs that span a face of their Minkowski difference are axes (on the Gauss
+    map, the arcs of a polytope's edges cross each other, or the great circle of the
+    directions normal to a segment): the edges themselves then support the axis, so the
+    separation is the axis's component of the gap between the edges' points, work ``Ea·Eb``
+    rather than ``Ea·Eb·(Va + Vb)``.
 
     ``c1, c2 (..., P, Ea, Eb, 3)``: the closest points of every edge pair, the witnesses."""
     start_a, start_b = a.edges[..., :, None, 0, :], b.edges[..., None, :, 0, :]
@@ -350,26 +350,3 @@ def _minkowski_edge_axes(a: Core, b: Core, c1, c2, smoothing):
         pick(weights, c2.flatten(-3, -2), -1),
         pick(weights, axis.flatten(-3, -2), -1),
     )
-
-
-def _edge_axes(a: Core, b: Core, smoothing):
-    """The best separating axis among the cross products of a's and b's edge directions,
-    turned to point from a's vertices towards b's: a penetration candidate like a face's."""
-    cross = torch.linalg.cross(
-        a.directions.unsqueeze(-2).expand(*a.directions.shape[:-1], b.directions.shape[-2], 3),
-        b.directions.unsqueeze(-3).expand(*b.directions.shape[:-2], a.directions.shape[-2], -1, 3),
-    ).flatten(-3, -2)  # (..., P, Da·Db, 3)
-    length = safe_norm(cross)
-    axis = cross / length.unsqueeze(-1)
-    towards = ((b.vertices.mean(-2) - a.vertices.mean(-2)).unsqueeze(-2) * axis).sum(-1)
-    axis = axis * torch.where(towards < 0, -1.0, 1.0).unsqueeze(-1)
-    reach_a = torch.einsum("...vk,...ak->...av", a.vertices, axis)  # (..., P, axes, Va)
-    reach_b = torch.einsum("...vk,...ak->...av", b.vertices, axis)
-    top_a, weights_a = select(reach_a, -1, smoothing, largest=True)
-    low_b, weights_b = select(reach_b, -1, smoothing)
-    # parallel edge directions have no common perpendicular: never the chosen axis
-    separation = torch.where(length > 1e-9, low_b - top_a, -1e3)
-    best, weights = select(separation, -1, smoothing, largest=True)
-    point_a = pick(weights, torch.einsum("...av,...vk->...ak", weights_a, a.vertices), -1)
-    point_b = pick(weights, torch.einsum("...av,...vk->...ak", weights_b, b.vertices), -1)
-    return best, point_a, point_b, pick(weights, axis, -1)

@@ -107,12 +107,8 @@ class Shape:
         edges = self.edges()
         if self.kind == "polytope":
             normals, _ = self.planes()
-            faces: dict[tuple[int, int], list[int]] = {}
-            for t, tri in enumerate(self.triangles):
-                for i, j in ((0, 1), (1, 2), (2, 0)):
-                    faces.setdefault(tuple(sorted((int(tri[i]), int(tri[j])))), []).append(t)
             bent = [
-                key for key, ts in faces.items()
+                key for key, ts in self._edge_faces().items()
                 if len(ts) != 2 or normals[ts[0]] @ normals[ts[1]] < 1 - 1e-9
             ]  # fmt: skip
             edges = np.array(bent, dtype=np.int64)
@@ -126,12 +122,17 @@ class Shape:
         """``(E, 2, 3)`` a polytope's outward normals of the two triangles beside each of its
         :meth:`edges` (equal for a diagonal between coplanar triangles)."""
         normals, _ = self.planes()
-        beside: dict[tuple[int, int], list[int]] = {}
-        for t, tri in enumerate(self.triangles):
-            for i, j in ((0, 1), (1, 2), (2, 0)):
-                beside.setdefault(tuple(sorted((int(tri[i]), int(tri[j])))), []).append(t)
+        beside = self._edge_faces()
         faces = [beside[(int(i), int(j))] for i, j in self.edges()]
         return np.stack([normals[[f[0], f[-1]]] for f in faces])
+
+    def _edge_faces(self) -> dict[tuple[int, int], list[int]]:
+        """A polytope's triangles beside each edge, by the edge's sorted vertex indices."""
+        faces: dict[tuple[int, int], list[int]] = {}
+        for t, tri in enumerate(self.triangles):
+            for i, j in ((0, 1), (1, 2), (2, 0)):
+                faces.setdefault(tuple(sorted((int(tri[i]), int(tri[j])))), []).append(t)
+        return faces
 
     def planes(self) -> tuple[np.ndarray, np.ndarray]:
         """A polytope's outward face planes: ``normals (T, 3)`` and ``offsets (T,)``."""
