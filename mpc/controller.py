@@ -43,6 +43,7 @@ from torchcontact.mpc.sources import (
     ContactsAt,
     FrozenAlongPlan,
     anchor_states,
+    live_reach,
     redetected,
 )
 from torchcontact.sim.dynamics import joint_layout
@@ -192,6 +193,7 @@ class ContactImplicitMPC:
         if bool((self.lower > self.upper).any()):
             raise ValueError("u_lower must not exceed u_upper")
         self.compiled = compile
+        self._reach = _Reach()
         self._differentiate, self._objective, self._freeze, self._live = self._compiled()
         self._warm = torch.zeros(1, horizon * n_u, dtype=dtype)
         self._last_q: torch.Tensor | None = None  # the state of the previous plan, for momentum
@@ -310,6 +312,8 @@ class ContactImplicitMPC:
         each state of four unrolled L-BFGS rounds made a graph that did not finish compiling in
         50 minutes (docs/experiments.md, "The MPC's contact sources")."""
         live = self.contacts_at if self.gaps == "live" else None
+        if live is not None and not self.compiled:
+            live = functools.partial(_contacts_through, live, self._reach)
         if not self.compiled:
             return self.taped, self.objective, None, live
         freeze = None
@@ -319,7 +323,8 @@ class ContactImplicitMPC:
         if live is not None:
             config = torch._dynamo.config  # a graph per vertex bucket and batch shape
             config.recompile_limit = max(config.recompile_limit, LIVE_GRAPHS)
-            live = functools.partial(_contacts_through, torch.compile(live, dynamic=False))
+            live = torch.compile(live, dynamic=False)
+            live = functools.partial(_contacts_through, live, self._reach)
             return functools.partial(_taped, objective), objective, freeze, live
         return torch.compile(self.differentiate, dynamic=False), objective, freeze, None
 
@@ -568,6 +573,9 @@ class ContactImplicitMPC:
         if self.gaps == "redetect":  # the solve's state: the (T, nq) anchors, the real one first
             q = anchor_states(self, q, contacts, self._warm.reshape(self.horizon, -1))
             contacts = redetected(self.contacts_at, q, contacts)
+        if self.gaps == "live" and hasattr(self.contacts_at, "within"):  # the broad phase
+            step = float(self.upper.abs().max().clamp_min(self.lower.abs().max()))
+            self._reach.groups = live_reach(self.contacts_at, q, self.horizon, step)
         contacts = contacts.padded(self.padded_slots(contacts.slots))
         if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out
             targets += (self._warm.reshape(self.horizon, -1).clone(),)
@@ -734,12 +742,20 @@ default, after which it would run eagerly): one per polytope vertex bucket
 (:func:`~torchcontact.geometry.scene.vertex_bucket`), batch shape and dtype."""
 
 
+class _Reach:
+    """The live geometry's groups within reach of the current solve (``SceneGeometry.
+    within``; None: all), set before each solve and read behind the graph break, so that the
+    objective's graph does not depend on them."""
+
+    groups: tuple[bool, ...] | None = None
+
+
 @torch.compiler.disable
-def _contacts_through(geometry: Callable, q: torch.Tensor) -> Contacts:
+def _contacts_through(geometry: Callable, reach: _Reach, q: torch.Tensor) -> Contacts:
     """``geometry(q)`` behind a graph break: the compiled objective calls the compiled
     geometry as a graph of its own (one function for every MPC, so that no objective graph is
-    specialised to one MPC's geometry)."""
-    return geometry(q)
+    specialised to one MPC's geometry), over the groups within reach (a graph per set)."""
+    return geometry(q) if reach.groups is None else geometry(q, reach.groups)
 
 
 def _taped(objective: Callable, controls: torch.Tensor, *args) -> tuple[torch.Tensor, torch.Tensor]:

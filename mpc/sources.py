@@ -31,6 +31,19 @@ from torchcontact.integrate import JointLayout, difference, integrate
 MOVING = ("redetect", "live")
 """The sources whose contacts move with the plan (they need a contact function of q)."""
 
+
+def live_reach(geometry, q: torch.Tensor, horizon: int, step: float) -> tuple[bool, ...]:
+    """The live geometry's groups to evaluate over a solve from ``q (nq,)``: those whose
+    bounding spheres lie within the margin plus twice the most the robot's shapes move in
+    ``horizon`` steps of at most ``step`` per joint (``SceneGeometry.lever``; twice: both
+    shapes of a pair may move, an object pushed no faster than what pushes it), and every
+    plane (the cheapest, and where a falling object goes faster than any bound of the
+    robot's). A pair left out enters a later solve once it comes within reach."""
+    reach = geometry.margin + 2 * horizon * step * geometry.lever(q)
+    near = geometry.within(q, reach)
+    return tuple(n or g.kind_b == "plane" for n, g in zip(near, geometry.groups, strict=True))
+
+
 ContactsAt = Callable[[torch.Tensor], Contacts]
 """Contacts at states ``q (..., nq)``: the plant's detector for ``"redetect"`` (called outside
 any gradient), a differentiable torch function for ``"live"``."""

@@ -278,3 +278,53 @@ def test_hulls_of_one_vertex_bucket_share_their_shapes():
         assert abs(float(phi[label]) - expected) < 1e-6
     assert shapes[0] == shapes[1]
     assert shapes[0]["groups.0.core_a.vertices"][1] == 32
+
+
+def test_the_broad_phase_never_leaves_out_a_pair_within_its_distance(pairs_scene):
+    """Each pair's bounding-sphere gap is at most its true distance, so a group ``within``
+    leaves out holds no pair that near; leaving the far groups out keeps every contact nearer
+    than that distance, and leaving all out gives no contacts."""
+    model, geometry = pairs_scene
+    rng = np.random.default_rng(11)
+    reach = 0.03
+    for _ in range(6):
+        q = torch.tensor(_random_state(model, rng, spread=0.08))
+        phi, _ = geometry.distances(q)
+        (position, rotation), _ = geometry.tree._poses(q)
+        bounds = torch.cat([g.bound(position, rotation) for g in geometry.groups])
+        grouped = [p for g in geometry.groups for p in geometry.pairs if _in(geometry, g, p)]
+        order = [geometry.pairs.index(p) for p in grouped]
+        assert (bounds <= phi[order] + 1e-9).all()
+        near = geometry.within(q, reach)
+        full, pruned = geometry(q), geometry(q, near)
+        close = np.sort(full.phi[full.active & (full.phi < reach)].numpy())
+        kept = np.sort(pruned.phi[pruned.active].numpy())
+        np.testing.assert_allclose(kept[: close.size], close)
+    none = geometry(q, (False,) * len(geometry.groups))
+    assert not none.active.any() and none.jac_normal.shape == full.jac_normal.shape
+    with pytest.raises(ValueError, match="groups must hold one flag per group"):
+        geometry(q, (True,))
+
+
+def _in(geometry, group, pair) -> bool:
+    """Whether ``pair`` is one of ``group``'s (its kinds)."""
+    kinds = (geometry.shapes[pair.a].kind, geometry.shapes[pair.b].kind)
+    return kinds == (group.kind_a, group.kind_b)
+
+
+def test_the_lever_bounds_how_far_a_joint_step_moves_the_robots_shapes():
+    """Turning every TriFinger joint by ±δ moves no bounding sphere farther than lever · δ."""
+    env = HandPlant("trifinger", "cube")
+    geometry = scene_geometry(env.detector, dtype=torch.float64)
+    q = torch.tensor(env.data.qpos.copy())
+    lever, step = geometry.lever(q), 0.02
+    rng = np.random.default_rng(3)
+    (position, rotation), _ = geometry.tree._poses(q)
+    for _ in range(5):
+        moved = q.clone()
+        moved[7:] += torch.tensor(rng.choice([-step, step], q.numel() - 7))
+        (after, turned), _ = geometry.tree._poses(moved)
+        for group in geometry.groups:
+            before = group.spheres(position, rotation)[0]
+            assert ((group.spheres(after, turned)[0] - before).norm(dim=-1) <= lever * step).all()
+    assert 0.3 < lever < 2.0  # [m per rad] three joints, a finger about 0.3 m long

@@ -144,3 +144,18 @@ def test_moving_sources_refuse_a_qp_and_need_a_contact_function(plant):
     args = (mpc.system, mpc.model, *args[2:])
     with pytest.raises(ValueError, match="gaps='redetect' needs contacts_at"):
         ContactImplicitMPC(*args, gaps="redetect")
+
+
+def test_live_solves_leave_out_the_pairs_out_of_the_horizons_reach():
+    """At the TriFinger's start the finger bases lie ≥ 20 cm from the cube, beyond what three
+    steps of its control box move (about 5 cm): a live solve evaluates every group but
+    theirs, the ground always."""
+    trifinger = environment("trifinger")
+    plant = trifinger.make_plant("cube")
+    settings = MPCSettings(compile=False, gaps="live", max_iter=2, horizon=3)
+    mpc = ContactImplicitMPC.from_env(trifinger, plant, settings=settings)
+    kinds = [(g.kind_a, g.kind_b) for g in mpc.contacts_at.groups]
+    plan = mpc.plan(torch.as_tensor(plant.state()), plant.contacts(DT), *TARGET)
+    assert np.isfinite(plan.cost)
+    left_out = [kind for kind, kept in zip(kinds, mpc._reach.groups, strict=True) if not kept]
+    assert left_out == [("polytope", "polytope")]

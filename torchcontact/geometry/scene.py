@@ -126,10 +126,53 @@ class SceneGeometry(torch.nn.Module):
         )
         return phi[..., self.order], first[..., self.order, :]
 
-    def forward(self, q: torch.Tensor) -> Contacts:
+    def within(self, q: torch.Tensor, distance: float) -> tuple[bool, ...]:
+        """Per group of :attr:`groups`, whether any of its pairs' bounding spheres come within
+        ``distance`` [m] of each other at any of ``q (..., nq)`` (a plane: the sphere's height
+        above it): the broad phase for :meth:`forward`'s ``groups``. A cheap bound, never more
+        than the pairs' true distances."""
+        with torch.no_grad():
+            (position, rotation), _ = self.tree._poses(q)
+            return tuple(
+                bool((group.bound(position, rotation) < distance).any()) for group in self.groups
+            )
+
+    def lever(self, q: torch.Tensor) -> float:
+        """[m per rad or m] The most a shape's point moves at ``q (..., nq)`` when each joint
+        other than a free one turns or slides by one unit at once (at most): over the joints
+        moving its body, the sum of its bounding sphere's farthest distance from each hinge's
+        anchor, and one per slide. Times a joint step, a bound on how far the robot's shapes
+        move (free bodies, the objects, are moved by what touches them)."""
+        with torch.no_grad():
+            (position, rotation), (_, anchors) = self.tree._poses(q)
+            driven = torch.ones(self.tree.nv, dtype=torch.bool, device=q.device)
+            for joint in self.tree.joints:
+                if joint.kind == "free":
+                    driven[joint.dof : joint.dof + 6] = False
+            most = 0.0
+            for group in self.groups:
+                centres, radii, bodies = group.spheres(position, rotation)
+                arm = safe_norm(centres.unsqueeze(-2) - anchors.unsqueeze(-3)) + radii[:, None]
+                arm = torch.where(self.tree.rotational, arm, 1.0)
+                arm = arm * (self.tree.moves[bodies] & driven).to(arm.dtype)
+                most = max(most, float(arm.sum(-1).max()))
+            return most
+
+    def forward(self, q: torch.Tensor, groups: tuple[bool, ...] | None = None) -> Contacts:
+        """``groups``: per group of :attr:`groups`, whether its pairs are evaluated (None:
+        all); a group left out adds no contacts (from :meth:`within`, for pairs out of reach)."""
+        if groups is not None and len(groups) != len(self.groups):
+            raise ValueError(
+                f"groups must hold one flag per group ({len(self.groups)}), got {len(groups)}"
+            )
         (position, rotation), dofs = self.tree._poses(q)
+        evaluated = self.groups if groups is None else [
+            group for group, kept in zip(self.groups, groups, strict=True) if kept
+        ]  # fmt: skip
+        if not evaluated:
+            return Contacts.empty(self.slots, self.tree.nv, q.shape[:-1], q.dtype, q.device)
         found = [
-            group.patch(position, rotation, self.margin, self.smoothing) for group in self.groups
+            group.patch(position, rotation, self.margin, self.smoothing) for group in evaluated
         ]
         kept = [_spanning(points, self.per_pair) for points in found]
         points = {
@@ -193,6 +236,35 @@ class _Group(torch.nn.Module):
         self.register_buffer("radius_a", torch.tensor([s.radius for s in a], dtype=dtype))
         self.core_a = _CoreConstants(a, dtype)
         self.core_b = _CoreConstants(b, dtype)
+        centre_a, sphere_a = _sphere(a)
+        centre_b, sphere_b = _sphere(b)
+        self.register_buffer("centre_a", as_tensor(centre_a, dtype))
+        self.register_buffer("centre_b", as_tensor(centre_b, dtype))
+        self.register_buffer("sphere_a", as_tensor(sphere_a, dtype))
+        self.register_buffer("sphere_b", as_tensor(sphere_b, dtype))
+
+    def bound(self, position, rotation) -> torch.Tensor:
+        """``(..., P)`` a lower bound [m] on each pair's distance: the gap between bounding
+        spheres about the shapes (a plane: the sphere's height above it)."""
+        centre = _moved(position, rotation, self.body_a, self.centre_a)
+        if self.kind_b == "plane":
+            normal, offset = self.core_b.plane(position, rotation, self.body_b)
+            return (centre * normal).sum(-1) - offset - self.sphere_a
+        other = _moved(position, rotation, self.body_b, self.centre_b)
+        return safe_norm(centre - other) - self.sphere_a - self.sphere_b
+
+    def spheres(self, position, rotation):
+        """World centres ``(..., 2P, 3)``, radii ``(2P,)`` and bodies ``(2P,)`` of both sides'
+        bounding spheres (a plane's: radius zero)."""
+        centres = torch.cat(
+            [
+                _moved(position, rotation, self.body_a, self.centre_a),
+                _moved(position, rotation, self.body_b, self.centre_b),
+            ],
+            -2,
+        )
+        radii = torch.cat([self.sphere_a, self.sphere_b])
+        return centres, radii, torch.cat([self.body_a, self.body_b])
 
     def patch(self, position, rotation, margin: float, smoothing) -> dict[str, torch.Tensor]:
         """Candidate points ``(..., P, C)`` of every pair: the pair's own witness first, then
@@ -326,6 +398,27 @@ class _CoreConstants(torch.nn.Module):
         x, r = position[..., bodies, :], rotation[..., bodies, :, :]
         normal = (r @ self.normal.unsqueeze(-1)).squeeze(-1)
         return normal, self.offset + (normal * x).sum(-1)
+
+
+def _sphere(shapes: Sequence[Shape]) -> tuple[np.ndarray, np.ndarray]:
+    """Centres ``(P, 3)`` (of the cores' bounding boxes, body frame) and radii ``(P,)`` [m] of
+    spheres holding each shape; a plane's are zero (its bound is its height)."""
+    centres, radii = [], []
+    for shape in shapes:
+        if shape.kind == "plane":
+            centres.append(np.zeros(3))
+            radii.append(0.0)
+            continue
+        centre = 0.5 * (shape.vertices.min(0) + shape.vertices.max(0))
+        centres.append(centre)
+        radii.append(np.linalg.norm(shape.vertices - centre, axis=-1).max() + shape.radius)
+    return np.stack(centres), np.array(radii)
+
+
+def _moved(position, rotation, bodies, points) -> torch.Tensor:
+    """Body-frame ``points (P, 3)`` on ``bodies (P,)`` in the world frame ``(..., P, 3)``."""
+    r = rotation[..., bodies, :, :]
+    return (r @ points.unsqueeze(-1)).squeeze(-1) + position[..., bodies, :]
 
 
 def _deepest_index(phi: torch.Tensor) -> torch.Tensor:
