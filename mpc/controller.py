@@ -574,7 +574,7 @@ class ContactImplicitMPC:
             q = anchor_states(self, q, contacts, self._warm.reshape(self.horizon, -1))
             contacts = redetected(self.contacts_at, q, contacts)
         if self.gaps == "live" and hasattr(self.contacts_at, "within"):  # the broad phase
-            step = float(self.upper.abs().max().clamp_min(self.lower.abs().max()))
+            step = max(float(self.upper.abs().max()), float(self.lower.abs().max()))
             self._reach.groups = live_reach(self.contacts_at, q, self.horizon, step)
         contacts = contacts.padded(self.padded_slots(contacts.slots))
         if self.fixes_residual:  # the warm start, whose corrections _frozen_args works out

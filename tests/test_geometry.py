@@ -304,6 +304,8 @@ def test_the_broad_phase_never_leaves_out_a_pair_within_its_distance(pairs_scene
     assert not none.active.any() and none.jac_normal.shape == full.jac_normal.shape
     with pytest.raises(ValueError, match="groups must hold one flag per group"):
         geometry(q, (True,))
+    with pytest.raises(ValueError, match="distance must be a finite length"):
+        geometry.within(q, float("nan"))
 
 
 def _in(geometry, group, pair) -> bool:

@@ -131,6 +131,8 @@ class SceneGeometry(torch.nn.Module):
         ``distance`` [m] of each other at any of ``q (..., nq)`` (a plane: the sphere's height
         above it): the broad phase for :meth:`forward`'s ``groups``. A cheap bound, never more
         than the pairs' true distances."""
+        if isinstance(distance, bool) or not np.isfinite(distance):
+            raise ValueError(f"distance must be a finite length [m], got {distance!r}")
         with torch.no_grad():
             (position, rotation), _ = self.tree._poses(q)
             return tuple(
