@@ -43,10 +43,13 @@ def pairs_scene():
     return model, scene_geometry(detector, dtype=torch.float64)
 
 
-def test_kinematics_and_point_jacobians_match_mujoco():
-    env = HandPlant("allegro", "cube")
+@pytest.mark.parametrize("hand", ["allegro", "trifinger"])
+def test_kinematics_and_point_jacobians_match_mujoco(hand):
+    env = HandPlant(hand, "cube")
     model, data = env.model, mujoco.MjData(env.model)
     tree = body_tree(model)
+    levels = [bodies for bodies, _ in tree._stages if len(bodies) > 1]
+    assert len(levels) >= 3 and all(len(b) >= 3 for b in levels)  # the fingers' levels batched
     rng = np.random.default_rng(0)
     jacp = np.zeros((3, model.nv))
     for _ in range(5):
@@ -61,6 +64,31 @@ def test_kinematics_and_point_jacobians_match_mujoco():
             mujoco.mj_jac(model, data, jacp, None, point, body)
             ours = tree.point_jacobian(dofs, torch.tensor([body]), torch.tensor(point)[None])
             np.testing.assert_allclose(ours[0].numpy(), jacp, atol=1e-12)
+
+
+def test_a_level_of_hinges_composed_at_once_equals_one_joint_at_a_time():
+    """Two branches of two hinge links each (references, anchors and offsets not zero), and a
+    slide beside them: the batched levels give the poses and axes of joint-by-joint."""
+    from torchcontact.geometry import BodyTree, Joint
+
+    rng = np.random.default_rng(3)
+    joints = [
+        Joint(1, "hinge", (0, 0, 1), (0.01, 0, 0), 0, 0, 0.3),
+        Joint(2, "hinge", (0, 1, 0), (0, 0.02, 0), 1, 1, -0.2),
+        Joint(3, "hinge", (1, 0, 0), (0, 0, 0.01), 2, 2, 0.1),
+        Joint(4, "hinge", (0, 0.6, 0.8), (0.02, 0, 0), 3, 3),
+        Joint(5, "slide", (1, 0, 0), (0, 0, 0), 4, 4, 0.05),
+    ]
+    offsets = torch.tensor(rng.normal(0, 0.05, (6, 3)))
+    turns = torch.nn.functional.normalize(torch.tensor(rng.normal(0, 1, (6, 4))), dim=-1)
+    tree = BodyTree([0, 0, 0, 1, 2, 0], offsets, turns, joints, 5, 5)
+    assert [len(bodies) for bodies, _ in tree._stages] == [1, 2, 2]
+    q = torch.tensor(rng.normal(0, 1, (4, 5)))
+    batched = tree._poses(q)
+    tree._stages = [((b,), tuple(tree._by_body[b])) for b in tree._moving]
+    for ours, theirs in zip(torch.utils._pytree.tree_leaves(batched),
+                            torch.utils._pytree.tree_leaves(tree._poses(q)), strict=True):  # fmt: skip
+        torch.testing.assert_close(ours, theirs, rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize("kind", ["plane", "point", "segment", "polytope"])

@@ -110,6 +110,7 @@ class BodyTree(torch.nn.Module):
         self.register_buffer("rotational", rotational)
         self._by_body = [[i for i, j in enumerate(joints) if j.body == b] for b in range(nbody)]
         self._moving = [b for b in range(1, nbody) if moves[b].any()]
+        self._stages = _stages(self.parent, self._moving, self._by_body, self.joints)
         self.register_buffer("offset_rotation", quaternion_to_matrix(offset_quaternion))
         cross = torch.zeros(len(joints), 3, 3, dtype=offset_position.dtype)
         for i, (x, y, z) in enumerate(j.axis for j in joints):
@@ -117,6 +118,19 @@ class BodyTree(torch.nn.Module):
         self.register_buffer("joint_cross", cross)
         self.register_buffer("joint_cross_square", cross @ cross)
         self.register_buffer("world_axes", torch.eye(3, dtype=offset_position.dtype))
+        for i, (bodies, index) in enumerate(self._stages):
+            if len(bodies) > 1:  # a level of hinges: its constants gathered once
+                rows, at = torch.tensor(index), list(bodies)
+                constants = {
+                    "qpos": torch.tensor([joints[j].qpos for j in index]),
+                    "reference": offset_position.new_tensor([joints[j].reference for j in index]),
+                    "offset": offset_position[at], "turn": self.offset_rotation[at],
+                    "axis": axes[rows], "anchor": anchors[rows],
+                    "cross": cross[rows], "square": (cross @ cross)[rows],
+                }  # fmt: skip
+                for name in _STAGE_CONSTANTS:  # derived from the above: not saved
+                    buffer = constants[name].clone()
+                    self.register_buffer(f"_stage{i}_{name}", buffer, persistent=False)
         # the poses of the bodies no joint moves, composed once
         position = torch.zeros(nbody, 3, dtype=offset_position.dtype)
         rotation = torch.eye(3, dtype=offset_position.dtype).repeat(nbody, 1, 1)
@@ -145,52 +159,82 @@ class BodyTree(torch.nn.Module):
         rotations = list(self.fixed_rotation.expand(*batch, -1, -1, -1).unbind(-3))
         axes: list[torch.Tensor | None] = [None] * self.nv
         anchors: list[torch.Tensor | None] = [None] * self.nv
-        for body in self._moving:
-            up = self.parent[body]
-            position = positions[up] + _apply(rotations[up], self.offset_position[body])
-            rotation = rotations[up] @ self.offset_rotation[body]
-            for index in self._by_body[body]:
-                joint = self.joints[index]
-                anchor_local = self.joint_anchor[index]
-                if joint.kind == "free":
-                    position = q[..., joint.qpos : joint.qpos + 3]
-                    rotation = quaternion_to_matrix(
-                        _normalized(q[..., joint.qpos + 3 : joint.qpos + 7])
-                    )
-                    for k in range(3):
-                        axes[joint.dof + k] = self.world_axes[k].expand(*batch, 3)
-                        axes[joint.dof + 3 + k] = rotation[..., :, k]
-                        anchors[joint.dof + k] = anchors[joint.dof + 3 + k] = position
-                    continue
-                anchor = position + _apply(rotation, anchor_local)
-                if joint.kind == "slide":
-                    world_axis = _apply(rotation, self.joint_axis[index])
-                    position = position + world_axis * (q[..., joint.qpos, None] - joint.reference)
-                    axes[joint.dof], anchors[joint.dof] = world_axis, anchor
-                    continue
-                if joint.kind == "hinge":
-                    axes[joint.dof] = _apply(rotation, self.joint_axis[index])
-                    anchors[joint.dof] = anchor
-                    angle = (q[..., joint.qpos] - joint.reference)[..., None, None]
-                    # Rodrigues: I + sin θ K + (1 − cos θ) K², K the axis's cross matrix
-                    cross, square = self.joint_cross[index], self.joint_cross_square[index]
-                    rotation = rotation + rotation @ (
-                        torch.sin(angle) * cross + (1 - torch.cos(angle)) * square
-                    )
-                else:  # ball
-                    turn = quaternion_to_matrix(_normalized(q[..., joint.qpos : joint.qpos + 4]))
-                    rotation = rotation @ turn
-                    for k in range(3):
-                        axes[joint.dof + k], anchors[joint.dof + k] = rotation[..., :, k], anchor
-                # the anchor stays where it is while the body turns about it
-                position = anchor - _apply(rotation, anchor_local)
-            positions[body] = position
-            rotations[body] = rotation
+        for stage, (bodies, _) in enumerate(self._stages):
+            if len(bodies) > 1:  # bodies of one tree level, each turned by one hinge
+                self._hinges(stage, q, positions, rotations, axes, anchors)
+            else:
+                self._body(bodies[0], q, positions, rotations, axes, anchors)
         poses = (torch.stack(positions, -2), torch.stack(rotations, -3))
         if self.nv == 0:
             empty = q.new_zeros(*batch, 0, 3)
             return poses, (empty, empty)
         return poses, (torch.stack(axes, -2), torch.stack(anchors, -2))
+
+    def _body(self, body: int, q, positions, rotations, axes, anchors) -> None:
+        """Body ``body``'s pose from its parent's and its joints, into the lists (and its dofs'
+        world axes and anchors)."""
+        batch = q.shape[:-1]
+        up = self.parent[body]
+        position = positions[up] + _apply(rotations[up], self.offset_position[body])
+        rotation = rotations[up] @ self.offset_rotation[body]
+        for index in self._by_body[body]:
+            joint = self.joints[index]
+            anchor_local = self.joint_anchor[index]
+            if joint.kind == "free":
+                position = q[..., joint.qpos : joint.qpos + 3]
+                rotation = quaternion_to_matrix(
+                    _normalized(q[..., joint.qpos + 3 : joint.qpos + 7])
+                )
+                for k in range(3):
+                    axes[joint.dof + k] = self.world_axes[k].expand(*batch, 3)
+                    axes[joint.dof + 3 + k] = rotation[..., :, k]
+                    anchors[joint.dof + k] = anchors[joint.dof + 3 + k] = position
+                continue
+            anchor = position + _apply(rotation, anchor_local)
+            if joint.kind == "slide":
+                world_axis = _apply(rotation, self.joint_axis[index])
+                position = position + world_axis * (q[..., joint.qpos, None] - joint.reference)
+                axes[joint.dof], anchors[joint.dof] = world_axis, anchor
+                continue
+            if joint.kind == "hinge":
+                axes[joint.dof] = _apply(rotation, self.joint_axis[index])
+                anchors[joint.dof] = anchor
+                angle = (q[..., joint.qpos] - joint.reference)[..., None, None]
+                # Rodrigues: I + sin θ K + (1 − cos θ) K², K the axis's cross matrix
+                cross, square = self.joint_cross[index], self.joint_cross_square[index]
+                rotation = rotation + rotation @ (
+                    torch.sin(angle) * cross + (1 - torch.cos(angle)) * square
+                )
+            else:  # ball
+                turn = quaternion_to_matrix(_normalized(q[..., joint.qpos : joint.qpos + 4]))
+                rotation = rotation @ turn
+                for k in range(3):
+                    axes[joint.dof + k], anchors[joint.dof + k] = rotation[..., :, k], anchor
+            # the anchor stays where it is while the body turns about it
+            position = anchor - _apply(rotation, anchor_local)
+        positions[body] = position
+        rotations[body] = rotation
+
+    def _hinges(self, stage: int, q, positions, rotations, axes, anchors) -> None:
+        """:meth:`_body` for the bodies of stage ``stage`` at once (one tree level, each moved
+        by one hinge): one set of batched ops for a level of every finger, not one a joint."""
+        bodies, index = self._stages[stage]
+        constant = {name: getattr(self, f"_stage{stage}_{name}") for name in _STAGE_CONSTANTS}
+        rotation_up = torch.stack([rotations[self.parent[b]] for b in bodies], -3)
+        position_up = torch.stack([positions[self.parent[b]] for b in bodies], -2)
+        position = position_up + _apply(rotation_up, constant["offset"])
+        rotation = rotation_up @ constant["turn"]
+        anchor = position + _apply(rotation, constant["anchor"])
+        axis = _apply(rotation, constant["axis"])
+        angle = (q[..., constant["qpos"]] - constant["reference"])[..., None, None]
+        rotation = rotation + rotation @ (
+            torch.sin(angle) * constant["cross"] + (1 - torch.cos(angle)) * constant["square"]
+        )
+        position = anchor - _apply(rotation, constant["anchor"])
+        for k, (body, joint) in enumerate(zip(bodies, index, strict=True)):
+            dof = self.joints[joint].dof
+            axes[dof], anchors[dof] = axis[..., k, :], anchor[..., k, :]
+            positions[body], rotations[body] = position[..., k, :], rotation[..., k, :, :]
 
     def point_jacobian(self, dofs, bodies: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """``(..., n, 3, nv)`` Jacobians of world ``points (..., n, 3)`` fixed to ``bodies (n,)``.
@@ -204,6 +248,29 @@ class BodyTree(torch.nn.Module):
         columns = torch.where(self.rotational[:, None], torch.linalg.cross(axes, lever), axes)
         columns = columns * self.moves[bodies].unsqueeze(-1).to(columns.dtype)
         return columns.transpose(-1, -2)
+
+
+_STAGE_CONSTANTS = ("qpos", "reference", "offset", "turn", "axis", "anchor", "cross", "square")
+"""The per-stage constants of a level of hinges, each a buffer ``_stage{i}_{name}``."""
+
+
+def _stages(parent, moving, by_body, joints) -> list[tuple[tuple[int, ...], tuple[int, ...]]]:
+    """The moving bodies in an order that composes each after its parent: ``(bodies, joints)``
+    per stage, where a stage of several bodies holds those of one tree level that are each
+    moved by exactly one hinge (composed together), and any other body is a stage alone."""
+    level: dict[int, int] = {}
+    for body in moving:
+        level[body] = level.get(parent[body], -1) + 1
+    stages: list[tuple[tuple[int, ...], tuple[int, ...]]] = []
+    for depth in range(max(level.values(), default=-1) + 1):
+        at = [b for b in moving if level[b] == depth]
+        hinged = [b for b in at if len(by_body[b]) == 1 and joints[by_body[b][0]].kind == "hinge"]
+        stages += [((b,), tuple(by_body[b])) for b in at if b not in hinged]
+        if len(hinged) > 1:
+            stages.append((tuple(hinged), tuple(by_body[b][0] for b in hinged)))
+        else:
+            stages += [((b,), tuple(by_body[b])) for b in hinged]
+    return stages
 
 
 def _apply(rotation: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
