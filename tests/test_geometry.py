@@ -84,10 +84,10 @@ def test_a_level_of_hinges_composed_at_once_equals_one_joint_at_a_time():
     tree = BodyTree([0, 0, 0, 1, 2, 0], offsets, turns, joints, 5, 5)
     assert [len(bodies) for bodies, _ in tree._stages] == [1, 2, 2]
     q = torch.tensor(rng.normal(0, 1, (4, 5)))
-    batched = tree._poses(q)
+    batched = torch.utils._pytree.tree_leaves(tree._poses(q))
     tree._stages = [((b,), tuple(tree._by_body[b])) for b in tree._moving]
-    for ours, theirs in zip(torch.utils._pytree.tree_leaves(batched),
-                            torch.utils._pytree.tree_leaves(tree._poses(q)), strict=True):  # fmt: skip
+    one_at_a_time = torch.utils._pytree.tree_leaves(tree._poses(q))
+    for ours, theirs in zip(batched, one_at_a_time, strict=True):
         torch.testing.assert_close(ours, theirs, rtol=0, atol=1e-14)
 
 

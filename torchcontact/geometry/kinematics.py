@@ -125,8 +125,8 @@ class BodyTree(torch.nn.Module):
                     "qpos": torch.tensor([joints[j].qpos for j in index]),
                     "reference": offset_position.new_tensor([joints[j].reference for j in index]),
                     "offset": offset_position[at], "turn": self.offset_rotation[at],
-                    "axis": axes[rows], "anchor": anchors[rows],
-                    "cross": cross[rows], "square": (cross @ cross)[rows],
+                    "axis": self.joint_axis[rows], "anchor": self.joint_anchor[rows],
+                    "cross": cross[rows], "square": self.joint_cross_square[rows],
                 }  # fmt: skip
                 for name in _STAGE_CONSTANTS:  # derived from the above: not saved
                     buffer = constants[name].clone()
@@ -200,10 +200,8 @@ class BodyTree(torch.nn.Module):
                 axes[joint.dof] = _apply(rotation, self.joint_axis[index])
                 anchors[joint.dof] = anchor
                 angle = (q[..., joint.qpos] - joint.reference)[..., None, None]
-                # Rodrigues: I + sin θ K + (1 − cos θ) K², K the axis's cross matrix
-                cross, square = self.joint_cross[index], self.joint_cross_square[index]
-                rotation = rotation + rotation @ (
-                    torch.sin(angle) * cross + (1 - torch.cos(angle)) * square
+                rotation = _turned(
+                    rotation, angle, self.joint_cross[index], self.joint_cross_square[index]
                 )
             else:  # ball
                 turn = quaternion_to_matrix(_normalized(q[..., joint.qpos : joint.qpos + 4]))
@@ -227,9 +225,7 @@ class BodyTree(torch.nn.Module):
         anchor = position + _apply(rotation, constant["anchor"])
         axis = _apply(rotation, constant["axis"])
         angle = (q[..., constant["qpos"]] - constant["reference"])[..., None, None]
-        rotation = rotation + rotation @ (
-            torch.sin(angle) * constant["cross"] + (1 - torch.cos(angle)) * constant["square"]
-        )
+        rotation = _turned(rotation, angle, constant["cross"], constant["square"])
         position = anchor - _apply(rotation, constant["anchor"])
         for k, (body, joint) in enumerate(zip(bodies, index, strict=True)):
             dof = self.joints[joint].dof
@@ -271,6 +267,12 @@ def _stages(parent, moving, by_body, joints) -> list[tuple[tuple[int, ...], tupl
         else:
             stages += [((b,), tuple(by_body[b])) for b in hinged]
     return stages
+
+
+def _turned(rotation, angle, cross, square) -> torch.Tensor:
+    """``rotation (..., 3, 3)`` turned by ``angle (..., 1, 1)`` [rad] about a body-frame axis
+    whose cross matrix K is ``cross`` and K² ``square``: Rodrigues, I + sin θ K + (1 − cos θ) K²."""
+    return rotation + rotation @ (torch.sin(angle) * cross + (1 - torch.cos(angle)) * square)
 
 
 def _apply(rotation: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
